@@ -1,0 +1,1 @@
+"""Lupin's adapters: I/O at the edges (import name lupin_adapters)."""

@@ -1,0 +1,1 @@
+"""The simulated Feetech servo bus: a product feature, not only a test fake."""
