@@ -106,12 +106,13 @@ def _format_loc(loc: tuple[Any, ...], data: Mapping[str, Any]) -> str:
 def apply_overlay(data: dict[str, Any], overlay: ArmOverlay, source: str) -> dict[str, Any]:
     joints = data.get("arm", {}).get("joints", [])
     names = [j.get("name") for j in joints if isinstance(j, Mapping)]
-    for name, values in overlay.joints.items():
+    for name in overlay.joints:
         if name not in names:
             raise ConfigError(f"{source}: joints.{name}: not a joint of this profile ({names})")
     new_joints = []
     for joint in joints:
-        ov = overlay.joints.get(joint.get("name")) if isinstance(joint, Mapping) else None
+        jname = joint.get("name") if isinstance(joint, Mapping) else None
+        ov = overlay.joints.get(jname) if isinstance(jname, str) else None
         if ov is not None:
             joint = {**joint, "zero": ov.zero, "min": ov.min, "max": ov.max}
         new_joints.append(joint)

@@ -224,15 +224,18 @@ def _check_ids(joints: list[JointConfig], wheels: list[WheelConfig]) -> None:
     # An arm id equal to a wheel id would send arm goals to a wheel (bring-up seed).
     seen: dict[int, str] = {}
     seen_names: set[str] = set()
-    for kind, items in (("arm.joints", joints), ("base.wheels", wheels)):
-        for i, item in enumerate(items):
-            where = f"{kind}[{i}] ({item.name})"
-            if item.id in seen:
-                raise ValueError(f"{where}.id: id {item.id} is already used by {seen[item.id]}")
-            if item.name in seen_names:
-                raise ValueError(f"{where}.name: duplicate name {item.name!r}")
-            seen[item.id] = where
-            seen_names.add(item.name)
+    entries: list[tuple[str, JointConfig | WheelConfig]] = [
+        *((f"arm.joints[{i}]", j) for i, j in enumerate(joints)),
+        *((f"base.wheels[{i}]", w) for i, w in enumerate(wheels)),
+    ]
+    for label, item in entries:
+        where = f"{label} ({item.name})"
+        if item.id in seen:
+            raise ValueError(f"{where}.id: id {item.id} is already used by {seen[item.id]}")
+        if item.name in seen_names:
+            raise ValueError(f"{where}.name: duplicate name {item.name!r}")
+        seen[item.id] = where
+        seen_names.add(item.name)
 
 
 class JointOverlay(Strict):

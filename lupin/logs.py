@@ -49,7 +49,9 @@ def setup_logging(level: str = "info", stream: object = None) -> None:
         handler.setFormatter(JournalFormatter("%(name)s: %(message)s"))
     else:
         isatty = getattr(out, "isatty", lambda: False)()
-        handler.setFormatter(TerminalFormatter(colour=bool(isatty) and "NO_COLOR" not in os.environ))
+        handler.setFormatter(
+            TerminalFormatter(colour=bool(isatty) and "NO_COLOR" not in os.environ)
+        )
     root = logging.getLogger()
     root.handlers[:] = [handler]
     root.setLevel(level.upper())

@@ -11,8 +11,18 @@ from lupin.cli import main
 from lupin.cli.parser import parse_args
 
 SUBCOMMANDS = [
-    "run", "sim", "check", "calibrate", "offsets", "gains", "pose", "jog", "heal",
-    "pad-calibrate", "pad-record", "bt-fix",
+    "run",
+    "sim",
+    "check",
+    "calibrate",
+    "offsets",
+    "gains",
+    "pose",
+    "jog",
+    "heal",
+    "pad-calibrate",
+    "pad-record",
+    "bt-fix",
 ]
 
 
@@ -58,7 +68,9 @@ def test_abbreviated_flag_is_not_guessed() -> None:
         (["teleport"], "invalid choice: 'teleport'"),
     ],
 )
-def test_bad_values_exit_2(argv: list[str], needle: str, capsys: pytest.CaptureFixture[str]) -> None:
+def test_bad_values_exit_2(
+    argv: list[str], needle: str, capsys: pytest.CaptureFixture[str]
+) -> None:
     with pytest.raises(SystemExit) as info:
         parse_args(argv)
     assert info.value.code == 2
@@ -67,11 +79,34 @@ def test_bad_values_exit_2(argv: list[str], needle: str, capsys: pytest.CaptureF
 
 def test_good_flags_parse() -> None:
     args = parse_args(
-        ["run", "--sim", "--profile", "mecanum", "--port", "0", "--pad", "replay:/tmp/x.jsonl",
-         "--pad-layout", "xbox-bluetooth", "--bus-port", "/dev/pts/3", "--log-level", "debug"]
+        [
+            "run",
+            "--sim",
+            "--profile",
+            "mecanum",
+            "--port",
+            "0",
+            "--pad",
+            "replay:/tmp/x.jsonl",
+            "--pad-layout",
+            "xbox-bluetooth",
+            "--bus-port",
+            "/dev/pts/3",
+            "--log-level",
+            "debug",
+        ]
     )
-    assert (args.sim, args.profile, args.port, args.pad) == (True, "mecanum", 0, "replay:/tmp/x.jsonl")
-    assert (args.pad_layout, args.bus_port, args.log_level) == ("xbox-bluetooth", "/dev/pts/3", "debug")
+    assert (args.sim, args.profile, args.port, args.pad) == (
+        True,
+        "mecanum",
+        0,
+        "replay:/tmp/x.jsonl",
+    )
+    assert (args.pad_layout, args.bus_port, args.log_level) == (
+        "xbox-bluetooth",
+        "/dev/pts/3",
+        "debug",
+    )
 
 
 def test_pending_command_says_so_and_fails(capsys: pytest.CaptureFixture[str]) -> None:

@@ -42,9 +42,11 @@ def test_packaged_profiles_load(home: Path) -> None:
     assert so101.bus.baud == 1_000_000
     mec = load_profile("mecanum", home=home)
     assert mec.base is not None and mec.base.kind == "mecanum" and len(mec.base.wheels) == 4
-    assert set(mec.presets) == set(so101.presets) == {
-        "home", "zero", "tuck", "pick", "place", "inspect"
-    }
+    assert (
+        set(mec.presets)
+        == set(so101.presets)
+        == {"home", "zero", "tuck", "pick", "place", "inspect"}
+    )
     mux = so101.mux.topics
     assert (mux["joy"].priority, mux["joy"].timeout) == (100, 0.3)
     assert (mux["manual"].priority, mux["manual"].timeout) == (50, 0.5)
