@@ -16,7 +16,10 @@ from lupin.config import ConfigError
 from lupin.logs import setup_logging
 
 # command -> "module:function"; a command missing here has not landed yet.
-HANDLERS: dict[str, str] = {}
+HANDLERS: dict[str, str] = {
+    "run": "lupin.cli.run:main",
+    "sim": "lupin_adapters.sim.cli:main",
+}
 
 # What is still to come, said plainly rather than faked.
 PENDING: dict[str, str] = {

@@ -1,0 +1,277 @@
+"""The control tick: read every servo, run the controllers, write only what changed.
+
+Each tick is one SYNC_READ of every servo's position, speed and load (health,
+round-robin, one servo every few ticks), then the mux, base and arm, then at
+most one SYNC_WRITE of the goals that changed since the last write. An idle
+robot therefore writes nothing (the bring-up seed's bus budget, beaten: it read
+one joint per cycle, this reads all of them every tick).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import time
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+from lupin import control_table as ct
+from lupin.arm import ArmCommander, Torque
+from lupin.base import BaseDrive
+from lupin.bus import PRIORITY_CONTROL, ServoBus
+from lupin.joints import JointGeometry
+from lupin.mux import Twist
+
+log = logging.getLogger(__name__)
+
+REG = ct.REGISTERS
+STATE_ADDR = REG["present_position"].address  # 56: position, speed, load
+STATE_LEN = 6
+HEALTH_ADDR = REG["present_voltage"].address  # 62: voltage, temperature, (63..65) status
+HEALTH_LEN = 4
+GOAL_POS = REG["goal_position"]
+GOAL_SPEED = REG["goal_speed"]
+TORQUE = REG["torque_enable"].address
+
+
+@dataclass
+class ServoReading:
+    position: int = 0
+    speed: int = 0
+    load: int = 0
+    t: float = 0.0  # when last read (monotonic)
+    voltage_v: float | None = None
+    temperature_c: int | None = None
+    status: int = 0
+    error: int = 0  # status packet error byte
+    misses: int = 0  # consecutive ticks without an answer
+
+
+@dataclass
+class TickStats:
+    """Tick timing for /metrics and the benchmarks."""
+
+    periods: deque[float] = field(default_factory=lambda: deque(maxlen=2000))
+    durations: deque[float] = field(default_factory=lambda: deque(maxlen=2000))
+    ticks: int = 0
+    overruns: int = 0
+    writes: int = 0
+    last_tick: float = 0.0
+
+
+class ControlLoop:
+    def __init__(
+        self,
+        bus: ServoBus,
+        arm: ArmCommander,
+        arm_joints: dict[str, JointGeometry],
+        base: BaseDrive | None,
+        mux_output: Callable[[float], tuple[Twist | None, float]],
+        *,
+        tick_hz: float = 100.0,
+        health_every: int = 10,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        self.bus = bus
+        self.arm = arm
+        self.arm_joints = arm_joints
+        self.by_id = {g.id: g for g in arm_joints.values()}
+        self.base = base
+        self.mux_output = mux_output
+        self.period = 1.0 / tick_hz
+        self.health_every = health_every
+        self.clock = clock
+        self.ids = [g.id for g in arm_joints.values()] + (base.wheel_ids if base else [])
+        self.readings: dict[int, ServoReading] = {i: ServoReading() for i in self.ids}
+        self.stats = TickStats()
+        self.estop = False
+        self.wheels_excluded: dict[int, str] = {}
+        self._written_pos: dict[int, int] = {}
+        self._written_speed: dict[int, int] = {}
+        self._wheel_torque = False
+        self._health_cursor = 0
+        self._enable_queue: list[str] = []
+        self._stop = asyncio.Event()
+        self.first_state = asyncio.Event()
+        self.on_tick: list[Callable[[float], None]] = []
+
+    # -- torque requests (served one joint per tick) ------------------------------
+
+    def request_enable(self) -> None:
+        for name in self.arm.names:
+            if name not in self.arm.excluded and self.arm.torque[name] is not Torque.ON:
+                self.arm.set_torque_state(name, Torque.ENABLING)
+                if name not in self._enable_queue:
+                    self._enable_queue.append(name)
+
+    async def disable_torque(self) -> None:
+        """Close the command gate first, then cut torque at once (two-gate sequence)."""
+        self.arm.gate_open = False
+        self._enable_queue.clear()
+        ids = [g.id for g in self.arm_joints.values()]
+        await self.bus.sync_write(TORQUE, 1, {i: b"\x00" for i in ids}, priority=PRIORITY_CONTROL)
+        for name in self.arm.names:
+            self.arm.set_torque_state(name, Torque.OFF)
+        self._written_pos.clear()
+
+    async def _enable_step(self) -> None:
+        name = self._enable_queue[0]
+        geo = self.arm_joints[name]
+        reading = self.readings[geo.id]
+        if reading.misses or reading.t == 0.0:
+            return  # a joint whose position cannot be read stays limp
+        # Seed the goal register with the present position, then energise: the
+        # order that stops an arm snapping to a stale goal (bring-up seed).
+        pos = reading.position
+        goal = ct.encode_value(GOAL_POS, pos)
+        ok = await self.bus.write(geo.id, GOAL_POS.address, goal, priority=PRIORITY_CONTROL)
+        ok = ok and await self.bus.write(geo.id, TORQUE, b"\x01", priority=PRIORITY_CONTROL)
+        if not ok:
+            log.warning("torque enable on %s got no acknowledgement; will retry", name)
+            return
+        self._enable_queue.pop(0)
+        self._written_pos[geo.id] = pos
+        self.arm.pin_to_measured([name])
+        self.arm.set_torque_state(name, Torque.ON)
+        if not self._enable_queue:
+            self.arm.gate_open = True
+            log.info("arm torque on; command gate open")
+
+    # -- the tick ----------------------------------------------------------------------
+
+    async def run(self) -> None:
+        loop = asyncio.get_running_loop()
+        next_at = loop.time()
+        last_start: float | None = None
+        while not self._stop.is_set():
+            start = loop.time()
+            if last_start is not None:
+                self.stats.periods.append(start - last_start)
+            last_start = start
+            try:
+                await self.tick()
+            except Exception:
+                log.exception("control tick failed")
+            self.stats.durations.append(loop.time() - start)
+            next_at += self.period
+            delay = next_at - loop.time()
+            if delay < 0:
+                self.stats.overruns += 1
+                next_at = loop.time()  # do not try to catch up with a burst of ticks
+                delay = 0
+            try:
+                await asyncio.wait_for(self._stop.wait(), delay)
+            except TimeoutError:
+                pass
+
+    def stop(self) -> None:
+        self._stop.set()
+
+    async def tick(self) -> None:
+        result = await self.bus.sync_read(self.ids, STATE_ADDR, STATE_LEN)
+        now = self.clock()
+        self.stats.ticks += 1
+        self.stats.last_tick = now
+        measured = {}
+        for sid in self.ids:
+            r = self.readings[sid]
+            data = result.data.get(sid)
+            if data is None:
+                r.misses += 1
+                continue
+            r.position = ct.decode_value(REG["present_position"], data[0:2])
+            r.speed = ct.decode_value(REG["present_speed"], data[2:4])
+            r.load = ct.decode_value(REG["present_load"], data[4:6])
+            r.error = result.errors.get(sid, 0)
+            r.t, r.misses = now, 0
+            geo = self.by_id.get(sid)
+            if geo is not None:
+                measured[geo.name] = geo.counts_to_rad(r.position)
+        self.arm.observe(measured, now)
+        if measured and len(measured) == len(self.arm_joints):
+            self.first_state.set()
+        if self._enable_queue:
+            await self._enable_step()
+        await self._write_goals(now)
+        if self.stats.ticks % self.health_every == 0:
+            await self._read_health()
+        for callback in self.on_tick:
+            callback(now)
+
+    async def _write_goals(self, now: float) -> None:
+        pos_goals: dict[int, int] = {}
+        for name, rad in self.arm.goals(now).items():
+            geo = self.arm_joints[name]
+            counts = geo.rad_to_counts(rad)
+            if self._written_pos.get(geo.id) != counts:
+                pos_goals[geo.id] = counts
+        speed_goals: dict[int, int] = {}
+        if self.base is not None:
+            twist, stamp = self.mux_output(now)
+            if self.estop:
+                self.base.stop()
+            else:
+                self.base.command(twist, stamp)
+            for sid, speed in self.base.wheel_goals(now).items():
+                if sid in self.wheels_excluded:
+                    continue
+                if self._written_speed.get(sid, 0) != speed:
+                    speed_goals[sid] = speed
+            if speed_goals and not self._wheel_torque and any(speed_goals.values()):
+                await self._wheel_torque_on()
+        await self._send(pos_goals, speed_goals)
+
+    async def _wheel_torque_on(self) -> None:
+        # Wheels stay limp until first asked to move; zero speed goes in before torque.
+        ids = [i for i in self.base.wheel_ids if i not in self.wheels_excluded] if self.base else []
+        zero = ct.encode_value(GOAL_SPEED, 0)
+        await self.bus.sync_write(GOAL_SPEED.address, 2, {i: zero for i in ids})
+        await self.bus.sync_write(TORQUE, 1, {i: b"\x01" for i in ids})
+        self._wheel_torque = True
+
+    async def _send(self, pos: dict[int, int], speed: dict[int, int]) -> None:
+        if not pos and not speed:
+            return
+        if pos and speed:
+            # One packet for both: goal position, goal time and goal speed are contiguous.
+            data = {}
+            for sid in pos.keys() | speed.keys():
+                p = pos.get(sid, self._written_pos.get(sid, self.readings[sid].position))
+                s = speed.get(sid, self._written_speed.get(sid, 0))
+                data[sid] = (
+                    ct.encode_value(GOAL_POS, p) + b"\x00\x00" + ct.encode_value(GOAL_SPEED, s)
+                )
+            await self.bus.sync_write(GOAL_POS.address, 6, data)
+        elif pos:
+            enc = {sid: ct.encode_value(GOAL_POS, p) for sid, p in pos.items()}
+            await self.bus.sync_write(GOAL_POS.address, 2, enc)
+        else:
+            enc = {sid: ct.encode_value(GOAL_SPEED, s) for sid, s in speed.items()}
+            await self.bus.sync_write(GOAL_SPEED.address, 2, enc)
+        self.stats.writes += 1
+        self._written_pos.update(pos)
+        self._written_speed.update(speed)
+
+    async def _read_health(self) -> None:
+        sid = self.ids[self._health_cursor % len(self.ids)]
+        self._health_cursor += 1
+        data = await self.bus.read(sid, HEALTH_ADDR, HEALTH_LEN, priority=PRIORITY_CONTROL)
+        if data is None:
+            return
+        r = self.readings[sid]
+        r.voltage_v = data[0] / 10
+        r.temperature_c = data[1]
+        r.status = data[3]
+
+    # -- shutdown ----------------------------------------------------------------------
+
+    async def safe_stop(self) -> None:
+        """Zero the wheels and limp every servo: the shutdown and crash-exit sequence."""
+        self.arm.gate_open = False
+        if self.base is not None:
+            zero = ct.encode_value(GOAL_SPEED, 0)
+            await self.bus.sync_write(GOAL_SPEED.address, 2, dict.fromkeys(self.base.wheel_ids, zero))
+        await self.bus.sync_write(TORQUE, 1, dict.fromkeys(self.ids, b"\x00"))
+        for name in self.arm.names:
+            self.arm.set_torque_state(name, Torque.OFF)
