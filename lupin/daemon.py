@@ -31,7 +31,7 @@ log = logging.getLogger(__name__)
 
 ESTOP_LOCK = "estop"
 ESTOP_PRIORITY = 256  # above every configurable priority (0-255)
-MODE_POSITION, MODE_VELOCITY = 0, 1
+MODE_POSITION, MODE_VELOCITY = ct.OperatingMode.POSITION, ct.OperatingMode.VELOCITY
 
 
 class BusOpenError(Exception):
@@ -53,7 +53,9 @@ def build_mux(profile: RobotProfile, *, sim: bool) -> VelocityMux | TakeoverMux:
         if sim or not t.sim_only
     ]
     if cfg.mode == "takeover":
-        return TakeoverMux(sources, manual_takeover_seconds=cfg.manual_takeover_seconds)
+        # The runbook's two-source cmd_vel_mux: the pad feeds `manual` in this mode.
+        pair = [s for s in sources if s.name in (TakeoverMux.MANUAL, TakeoverMux.AUTO)]
+        return TakeoverMux(pair, manual_takeover_seconds=cfg.manual_takeover_seconds)
     locks = [LockSpec(name, t.priority, t.timeout) for name, t in cfg.locks.items()]
     locks.append(LockSpec(ESTOP_LOCK, ESTOP_PRIORITY, 0.0))
     return VelocityMux(sources, locks)
