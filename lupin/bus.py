@@ -202,7 +202,9 @@ class ServoBus:
         for attempt in range(tries):
             fut: asyncio.Future[dict[int, Packet]] = asyncio.get_running_loop().create_future()
             pending = tuple(i for i in expect if i not in got)
-            self._queue.put_nowait(_Request(priority, next(self._seq), packet, pending, length, kind, fut))
+            self._queue.put_nowait(
+                _Request(priority, next(self._seq), packet, pending, length, kind, fut)
+            )
             got.update(await fut)
             if all(i in got for i in expect):
                 break

@@ -160,10 +160,8 @@ class ControlLoop:
                 self.stats.overruns += 1
                 next_at = loop.time()  # do not try to catch up with a burst of ticks
                 delay = 0
-            try:
-                await asyncio.wait_for(self._stop.wait(), delay)
-            except TimeoutError:
-                pass
+            # A plain sleep: at most one tick of stop latency, and no task per tick.
+            await asyncio.sleep(delay)
 
     def stop(self) -> None:
         self._stop.set()
@@ -271,7 +269,9 @@ class ControlLoop:
         self.arm.gate_open = False
         if self.base is not None:
             zero = ct.encode_value(GOAL_SPEED, 0)
-            await self.bus.sync_write(GOAL_SPEED.address, 2, dict.fromkeys(self.base.wheel_ids, zero))
+            await self.bus.sync_write(
+                GOAL_SPEED.address, 2, dict.fromkeys(self.base.wheel_ids, zero)
+            )
         await self.bus.sync_write(TORQUE, 1, dict.fromkeys(self.ids, b"\x00"))
         for name in self.arm.names:
             self.arm.set_torque_state(name, Torque.OFF)
