@@ -1,0 +1,1 @@
+"""Shared test support: harnesses for the simulated bus and the real daemon."""
