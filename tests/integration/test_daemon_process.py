@@ -7,9 +7,8 @@ import signal
 import time
 from pathlib import Path
 
-from lupintest.harness import Sim, child_env, lupin_cmd
-
 from lupin import control_table as ct
+from lupintest.harness import Sim, child_env, lupin_cmd
 
 TORQUE = ct.REGISTERS["torque_enable"].address
 GOAL_SPEED = ct.REGISTERS["goal_speed"].address
