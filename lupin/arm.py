@@ -65,6 +65,8 @@ class ArmCommander:
         self.estop = False
         self.gate_open = False
         self.resyncs = 0
+        # Joints whose last motion stalled; shown as stalled until next commanded.
+        self.stalled: set[str] = set()
 
     # -- measurement -----------------------------------------------------------
 
@@ -88,7 +90,8 @@ class ArmCommander:
                 self._adopt(name, pos)
 
     def traj_active(self, name: str, now: float) -> bool:
-        return self.traj.status().get(name) == JointStatus.MOVING
+        # A stalled joint still has motion commanded on it: resync must not hide the stall.
+        return self.traj.status().get(name) in (JointStatus.MOVING, JointStatus.STALLED)
 
     def _adopt(self, name: str, pos: float) -> None:
         assert self.commanded is not None
@@ -125,6 +128,7 @@ class ArmCommander:
         if not math.isfinite(duration) or duration <= 0:
             raise Refused("bad_duration", f"travel time must be positive, got {duration}")
         clamped = {n: self.joints[n].clamp_rad(v) for n, v in targets.items()}
+        self.stalled.difference_update(clamped)
         self.traj.set_goal([TrajectoryPoint(positions=clamped, time_from_start=duration)], now)
         assert self.commanded is not None
         self.commanded.update(clamped)
@@ -141,6 +145,7 @@ class ArmCommander:
             )
             for p in points
         ]
+        self.stalled.difference_update(names)
         self.traj.set_goal(clamped, now)
         assert self.commanded is not None
         self.commanded.update(clamped[-1].positions)

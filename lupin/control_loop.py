@@ -138,6 +138,30 @@ class ControlLoop:
             self.arm.gate_open = True
             log.info("arm torque on; command gate open")
 
+    @property
+    def wheel_torque(self) -> bool:
+        return self._wheel_torque
+
+    async def reenable(self, servo_id: int) -> bool:
+        """Re-energise one servo that unloaded (heal): seed its goal first, as at enable."""
+        reading = self.readings.get(servo_id)
+        if reading is None or reading.misses or reading.t == 0.0:
+            return False
+        geo = self.by_id.get(servo_id)
+        if geo is not None:
+            goal_reg, value = GOAL_POS, reading.position
+        else:
+            goal_reg, value = GOAL_SPEED, 0
+        data = ct.encode_value(goal_reg, value)
+        ok = await self.bus.write(servo_id, goal_reg.address, data, priority=PRIORITY_CONTROL)
+        ok = ok and await self.bus.write(servo_id, TORQUE, b"\x01", priority=PRIORITY_CONTROL)
+        if ok and geo is not None:
+            self._written_pos[servo_id] = value
+            self.arm.pin_to_measured([geo.name])
+        elif ok:
+            self._written_speed[servo_id] = 0
+        return ok
+
     # -- the tick ----------------------------------------------------------------------
 
     async def run(self) -> None:

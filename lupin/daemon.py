@@ -20,12 +20,22 @@ from typing import Any
 from lupin import control_table as ct
 from lupin import registry
 from lupin.arm import ArmCommander, Torque
+from lupin.arm_status import StallEvent, StallMonitor
 from lupin.base import BaseDrive
-from lupin.bus import PRIORITY_CONTROL, ServoBus
+from lupin.bus import ServoBus
 from lupin.config_models import RobotProfile
 from lupin.control_loop import ControlLoop
+from lupin.heal import (
+    AutoHomeState,
+    HealReport,
+    ResumeWatcher,
+    auto_home,
+    auto_home_enabled,
+    heal,
+)
 from lupin.joints import arm_geometry
 from lupin.mux import LockSpec, SourceSpec, TakeoverMux, Twist, VelocityMux
+from lupin.services import Services
 
 log = logging.getLogger(__name__)
 
@@ -43,6 +53,8 @@ class DaemonOptions:
     sim: bool = False
     bus_port: str | None = None
     sim_wire_pacing: bool = False
+    # None: follow $LUPIN_AUTO_HOME (default on). Tests that need a limp arm say False.
+    auto_home: bool | None = None
 
 
 def build_mux(profile: RobotProfile, *, sim: bool) -> VelocityMux | TakeoverMux:
@@ -84,7 +96,13 @@ class Daemon:
         self.bus: ServoBus | None = None
         self.loop: ControlLoop | None = None
         self._tasks: list[asyncio.Task[Any]] = []
-        self._link_closer: Any = None
+        self.restarts: list[str] = []  # crashed tasks restarted since the last heal
+        self.stalls = StallMonitor(self.arm.traj, on_stall=self._on_stall)
+        self.auto_home_state: AutoHomeState | None = None
+        self.last_heal: HealReport | None = None
+        self.pad_info: dict[str, object] | None = None
+        self._pad_state: dict[str, object] = {"connected": False}
+        self.services = Services(self)
 
     # -- lifecycle ------------------------------------------------------------
 
@@ -116,12 +134,41 @@ class Daemon:
             clock=self.clock,
         )
         await self.verify_servos()
-        self._tasks.append(asyncio.create_task(self.loop.run(), name="control-loop"))
+        self.loop.on_tick.append(self._after_tick)
+        self._spawn("control-loop", self.loop.run)
+        self._spawn("resume-watch", self._watch_resume)
+        want_home = self.options.auto_home
+        if want_home is None:
+            want_home = auto_home_enabled()
+        self.auto_home_state = "pending" if want_home else "disabled"
+        self._tasks.append(asyncio.create_task(self._boot_heal(want_home), name="boot-heal"))
+
+    def _spawn(self, name: str, factory: Callable[[], Any]) -> None:
+        """Run a long-lived task, restarting it with backoff if it crashes."""
+
+        async def supervised() -> None:
+            backoff = 0.1
+            while True:
+                try:
+                    await factory()
+                    return
+                except asyncio.CancelledError:
+                    raise
+                except Exception:
+                    log.exception("%s crashed; restarting in %.1f s", name, backoff)
+                    self.restarts.append(name)
+                    await asyncio.sleep(backoff)
+                    backoff = min(backoff * 2, 5.0)
+
+        self._tasks.append(asyncio.create_task(supervised(), name=name))
 
     async def stop(self) -> None:
         """Stop ticking, zero the wheels, limp the arm, release the port."""
         if self.loop is not None:
             self.loop.stop()
+        for task in self._tasks:
+            if task.get_name() != "control-loop":
+                task.cancel()
         for task in self._tasks:
             with contextlib.suppress(asyncio.CancelledError, Exception):
                 await asyncio.wait_for(task, 0.5)
@@ -184,6 +231,73 @@ class Daemon:
             for n in self.arm.names:
                 self.arm.set_torque_state(n, Torque.UNKNOWN)
 
+    # -- per-tick supervision, heal, auto-home ------------------------------------
+
+    def _after_tick(self, now: float) -> None:
+        assert self.loop is not None
+        bits = {g.name: self.loop.readings[g.id].error for g in self.geometry.values()}
+        self.stalls.update(now, self.arm.measured, bits)
+
+    def _on_stall(self, event: StallEvent) -> None:
+        log.warning(
+            "STALL %s: %.3f rad from target; %s", event.joint, event.error_rad, event.diagnosis
+        )
+        self.arm.stalled.add(event.joint)
+        if self.arm.traj.stall_reason(event.joint) == "lag":
+            # Not keeping up: stop where it is rather than push against what holds it.
+            self.arm.hold(event.t)
+
+    async def heal(self) -> HealReport:
+        report = await heal(_HealAdapter(self))
+        self.last_heal = report
+        log.info("heal: %s (%s)", report.result, "; ".join(report.details))
+        return report
+
+    async def _boot_heal(self, want_home: bool) -> None:
+        report = await self.heal()
+        if not want_home:
+            return
+        if report.result == "unknown":
+            self.auto_home_state = "skipped"
+            return
+        self.auto_home_state = await auto_home(self._wait_seeded, self._park)
+
+    async def _wait_seeded(self, timeout: float) -> bool:
+        return await self.wait_ready(timeout)
+
+    async def _park(self) -> None:
+        from lupin import api_models as m
+
+        await self.services.set_torque(m.TorqueRequest(enabled=True))
+        if not self.arm.gate_open:
+            raise RuntimeError("torque did not come on")
+        await self.services.go_preset("home")
+
+    async def _watch_resume(self) -> None:
+        watcher = ResumeWatcher()
+        while True:
+            await asyncio.sleep(1.0)
+            if watcher.resumed():
+                log.warning("resume from suspend detected: re-running heal")
+                await self.heal()
+
+    async def wait_torque_on(self, timeout: float) -> bool:
+        deadline = asyncio.get_running_loop().time() + timeout
+        while not self.arm.gate_open:
+            if asyncio.get_running_loop().time() > deadline:
+                return False
+            await asyncio.sleep(0.01)
+        return True
+
+    def mux_sources(self) -> list[str]:
+        return [s.name for s in self.mux.sources]
+
+    def pad_layout_info(self) -> dict[str, object] | None:
+        return self.pad_info
+
+    def pad_state(self) -> dict[str, object]:
+        return self._pad_state
+
     # -- commands used by the API and teleop -----------------------------------
 
     def _mux_output(self, now: float) -> tuple[Twist | None, float]:
@@ -214,7 +328,55 @@ class Daemon:
 
     async def disable_torque(self) -> None:
         assert self.loop is not None
+        self.arm.hold(self.clock())
         await self.loop.disable_torque()
 
 
-__all__ = ["PRIORITY_CONTROL", "BusOpenError", "Daemon", "DaemonOptions", "build_mux"]
+class _HealAdapter:
+    """The daemon as heal sees it: enumerate, re-enable, restart."""
+
+    def __init__(self, daemon: Daemon) -> None:
+        self.d = daemon
+
+    async def enumerate(self) -> dict[int, tuple[int, int, int]] | None:
+        d = self.d
+        if d.bus is None or d.loop is None:
+            return None
+        mode_addr = ct.REGISTERS["operating_mode"].address
+        span = ct.REGISTERS["torque_enable"].address - mode_addr + 1
+        try:
+            res = await d.bus.sync_read(d.loop.ids, mode_addr, span, priority=1, retries=1)
+        except Exception:
+            return None
+        return {sid: (data[0], data[-1], res.errors.get(sid, 0)) for sid, data in res.data.items()}
+
+    def expected(self) -> dict[int, tuple[str, int, bool]]:
+        d = self.d
+        out = {
+            g.id: (g.name, int(MODE_POSITION), d.arm.torque[g.name] is Torque.ON)
+            for g in d.geometry.values()
+        }
+        if d.base is not None and d.loop is not None:
+            for w in d.base.config.wheels:
+                out[w.id] = (w.name, int(MODE_VELOCITY), d.loop.wheel_torque)
+        return out
+
+    async def reenable(self, servo_id: int) -> bool:
+        d = self.d
+        assert d.loop is not None
+        ok = await d.loop.reenable(servo_id)
+        geo = d.loop.by_id.get(servo_id)
+        if ok and geo is not None:
+            d.arm.stalled.discard(geo.name)
+        return ok
+
+    def dead_tasks(self) -> list[str]:
+        return list(self.d.restarts)
+
+    async def restart_tasks(self) -> list[str]:
+        # Crashed tasks restart themselves with backoff (Daemon._spawn); report them once.
+        done, self.d.restarts = self.d.restarts, []
+        return done
+
+
+__all__ = ["BusOpenError", "Daemon", "DaemonOptions", "build_mux"]

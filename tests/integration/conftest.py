@@ -23,7 +23,7 @@ async def sim(lupin_home: Path) -> AsyncIterator[Sim]:
 
 @pytest.fixture()
 async def daemon(sim: Sim) -> AsyncIterator[Daemon]:
-    d = Daemon(sim.profile, DaemonOptions(bus_port=sim.path))
+    d = Daemon(sim.profile, DaemonOptions(bus_port=sim.path, auto_home=False))
     await d.start()
     try:
         assert await d.wait_ready(3.0), "no complete joint state from the sim"

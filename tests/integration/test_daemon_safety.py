@@ -150,7 +150,7 @@ async def test_excluded_servo_in_wrong_mode(sim: Sim) -> None:
     from lupin.daemon import Daemon, DaemonOptions
 
     sim.bus.servo(3).set("operating_mode", 1)
-    d = Daemon(sim.profile, DaemonOptions(bus_port=sim.path))
+    d = Daemon(sim.profile, DaemonOptions(bus_port=sim.path, auto_home=False))
     await d.start()
     try:
         assert await d.wait_ready(3.0)

@@ -64,4 +64,6 @@ def child_env(home: Path) -> dict[str, str]:
     env = dict(os.environ)
     env["LUPIN_HOME"] = str(home)
     env.pop("JOURNAL_STREAM", None)
+    # Auto-home energises the arm 2 s after boot; tests that want it turn it on.
+    env.setdefault("LUPIN_AUTO_HOME", "false")
     return env

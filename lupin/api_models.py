@@ -1,0 +1,221 @@
+"""Request and response bodies of the service layer and the HTTP/WebSocket API.
+
+One set of pydantic models serves three masters: the service layer returns
+them, the API validates requests with them, and the OpenAPI document is
+generated from them, so the contract cannot drift from the code. Angles are
+degrees unless the field name ends in ``_rad``. Requests forbid unknown fields
+and refuse NaN and infinities.
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+Finite = Annotated[float, Field(allow_inf_nan=False)]
+Speed = Annotated[float, Field(gt=0, le=720, allow_inf_nan=False)]
+PoseName = Annotated[str, Field(pattern=r"^[A-Za-z0-9_-]{1,40}$")]
+
+
+class Request(BaseModel):
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+
+class Response(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+
+# -- requests ----------------------------------------------------------------------
+
+
+class TwistRequest(Request):
+    source: Literal["manual", "auto"]
+    linear_x: Annotated[float, Field(ge=-2, le=2, allow_inf_nan=False)] = 0.0
+    linear_y: Annotated[float, Field(ge=-2, le=2, allow_inf_nan=False)] = 0.0
+    angular_z: Annotated[float, Field(ge=-6, le=6, allow_inf_nan=False)] = 0.0
+
+
+class EstopRequest(Request):
+    engaged: bool
+
+
+class JointRequest(Request):
+    angle_deg: Finite
+    speed_deg_s: Speed | None = None
+
+
+class TorqueRequest(Request):
+    enabled: bool
+
+
+class PoseGoRequest(Request):
+    max_travel_rad: Annotated[float, Field(gt=0, le=6.3, allow_inf_nan=False)] = 0.35
+    speed_rad_s: Annotated[float, Field(gt=0, le=3.0, allow_inf_nan=False)] = 0.5
+
+
+class PoseSaveRequest(Request):
+    """PUT a pose: capture the current measured pose, or store the given joints (rad)."""
+
+    joints_rad: dict[str, Finite] | None = None
+
+
+# -- responses -----------------------------------------------------------------------
+
+
+class ErrorBody(Response):
+    code: str
+    message: str
+
+
+class ErrorResponse(Response):
+    error: ErrorBody
+
+
+class Ok(Response):
+    ok: bool = True
+
+
+class MoveResponse(Response):
+    """A motion accepted: where each joint is going and how long it takes."""
+
+    targets_deg: dict[str, float]
+    travel_s: float
+
+
+class TorqueResponse(Response):
+    torque: Literal["on", "off", "unknown", "enabling"]
+
+
+class EstopResponse(Response):
+    engaged: bool
+
+
+class JointState(Response):
+    name: str
+    id: int
+    position_deg: float | None
+    velocity_deg_s: float | None
+    load: int | None
+    temperature_c: int | None
+    voltage_v: float | None
+    commanded_deg: float | None
+    target_deg: float | None
+    status: Literal["idle", "moving", "settled", "stalled"]
+    torque: Literal["on", "off", "unknown", "enabling"]
+    excluded: str | None = None
+    error_bits: int = 0
+    stale: bool = False
+
+
+class WheelState(Response):
+    name: str
+    id: int
+    speed_counts_s: int | None
+    goal_counts_s: int
+    excluded: str | None = None
+
+
+class SourceState(Response):
+    priority: int
+    timeout: float
+    age_s: float | None
+    fresh: bool
+    masked: bool
+
+
+class MuxState(Response):
+    mode: Literal["priority", "takeover"]
+    active: str | None
+    locked_by: str | None
+    sources: dict[str, SourceState]
+
+
+class BaseState(Response):
+    twist: dict[str, float] | None
+    wheels: list[WheelState]
+
+
+class PadState(Response):
+    connected: bool
+    layout: str | None = None
+    deadman: bool = False
+    age_s: float | None = None
+
+
+class StallEvent(Response):
+    t: float
+    joint: str
+    error_deg: float
+    diagnosis: str
+
+
+class RobotState(Response):
+    t: float
+    joints: list[JointState]
+    torque: Literal["on", "off", "unknown", "enabling"]
+    estop: bool
+    seeded: bool
+    mux: MuxState
+    base: BaseState | None
+    pad: PadState
+    events: list[StallEvent] = []
+
+
+class JointInfo(Response):
+    name: str
+    id: int
+    window_deg: tuple[int, int]
+    is_gripper: bool = False
+
+
+class GripperInfo(Response):
+    joint: str
+    hmi_open_deg: float
+    hmi_closed_deg: float
+
+
+class RobotInfo(Response):
+    profile: str
+    description: str
+    joints: list[JointInfo]
+    gripper: GripperInfo | None
+    presets: dict[str, dict[str, float]]  # degrees
+    pad_layout: dict[str, object] | None
+    mux_sources: dict[str, SourceState]
+    default_speed_deg_s: float
+    state_hz: float
+
+
+class PresetList(Response):
+    presets: dict[str, dict[str, float]]  # degrees
+
+
+class Pose(Response):
+    name: str
+    joints_rad: dict[str, float]
+    distance_rad: float | None = None  # largest joint distance from the current pose
+
+
+class PoseList(Response):
+    poses: list[Pose]
+
+
+class PoseGoResponse(Response):
+    name: str
+    largest_travel_rad: float
+    travel_s: float
+
+
+class HealResponse(Response):
+    result: Literal["healthy", "healed", "failed", "unknown"]
+    details: list[str]
+    auto_home: Literal["done", "skipped", "disabled", "failed", "pending"] | None = None
+
+
+class HealthResponse(Response):
+    ok: bool
+    profile: str
+    bus: dict[str, object]
+    tick_hz: float
+    uptime_s: float
