@@ -21,6 +21,7 @@ from lupin.arm import ArmCommander, Torque
 from lupin.base import BaseDrive
 from lupin.bus import PRIORITY_CONTROL, ServoBus
 from lupin.joints import JointGeometry
+from lupin.logs import Throttled
 from lupin.mux import Twist
 
 log = logging.getLogger(__name__)
@@ -95,6 +96,7 @@ class ControlLoop:
         self._stop = asyncio.Event()
         self.first_state = asyncio.Event()
         self.on_tick: list[Callable[[float], None]] = []
+        self._throttled = Throttled(log)
 
     # -- torque requests (served one joint per tick) ------------------------------
 
@@ -176,7 +178,7 @@ class ControlLoop:
             try:
                 await self.tick()
             except Exception:
-                log.exception("control tick failed")
+                self._throttled.exception("tick", "control tick failed", start)
             self.stats.durations.append(loop.time() - start)
             next_at += self.period
             delay = next_at - loop.time()

@@ -57,3 +57,26 @@ def setup_logging(level: str = "info", stream: object = None) -> None:
     root.setLevel(level.upper())
     # aiohttp's access log is noise at 100s of requests per second.
     logging.getLogger("aiohttp.access").setLevel(logging.WARNING)
+
+
+class Throttled:
+    """Log a recurring failure once, then at most every ``every`` seconds with a count.
+
+    A bus that is unplugged fails at the tick rate; a hundred tracebacks a
+    second would bury the one line an operator needs in the journal.
+    """
+
+    def __init__(self, logger: logging.Logger, every: float = 5.0) -> None:
+        self.logger = logger
+        self.every = every
+        self._last: dict[str, float] = {}
+        self._count: dict[str, int] = {}
+
+    def exception(self, key: str, msg: str, now: float) -> None:
+        self._count[key] = self._count.get(key, 0) + 1
+        last = self._last.get(key)
+        if last is None or now - last >= self.every:
+            n = self._count.pop(key)
+            suffix = f" ({n} times since the last report)" if n > 1 else ""
+            self.logger.exception("%s%s", msg, suffix)
+            self._last[key] = now
