@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import functools
 import logging
 import math
 import time
@@ -23,6 +24,7 @@ from lupin.arm import ArmCommander, Torque
 from lupin.arm_status import StallEvent, StallMonitor
 from lupin.base import BaseDrive
 from lupin.bus import ServoBus
+from lupin.config import ConfigError
 from lupin.config_models import RobotProfile
 from lupin.control_loop import ControlLoop
 from lupin.heal import (
@@ -35,7 +37,11 @@ from lupin.heal import (
 )
 from lupin.joints import arm_geometry
 from lupin.mux import LockSpec, SourceSpec, TakeoverMux, Twist, VelocityMux
+from lupin.pad import open_pad
+from lupin.pad_mapping import load_mapping, resolve_layout
+from lupin.pad_task import PadStatus, run_pad
 from lupin.services import Services
+from lupin.teleop import ArmTeleop, BaseTeleop
 
 log = logging.getLogger(__name__)
 
@@ -55,6 +61,12 @@ class DaemonOptions:
     sim_wire_pacing: bool = False
     # None: follow $LUPIN_AUTO_HOME (default on). Tests that need a limp arm say False.
     auto_home: bool | None = None
+    pad: str = "none"  # --pad auto|none|evdev:DEV|hid:VID:PID|replay:FILE
+    pad_layout: str | None = None  # --pad-layout; None = detect the transport
+
+
+class PadError(Exception):
+    """The pad set-up is wrong (bad spec, bad mapping or replay file); nothing moved."""
 
 
 def build_mux(profile: RobotProfile, *, sim: bool) -> VelocityMux | TakeoverMux:
@@ -101,7 +113,7 @@ class Daemon:
         self.auto_home_state: AutoHomeState | None = None
         self.last_heal: HealReport | None = None
         self.pad_info: dict[str, object] | None = None
-        self._pad_state: dict[str, object] = {"connected": False}
+        self.pad_status: PadStatus | None = None
         self.services = Services(self)
 
     # -- lifecycle ------------------------------------------------------------
@@ -296,7 +308,64 @@ class Daemon:
         return self.pad_info
 
     def pad_state(self) -> dict[str, object]:
-        return self._pad_state
+        st = self.pad_status
+        if st is None:
+            return {"connected": False}
+        age = None if st.last_frame_at is None else max(0.0, self.clock() - st.last_frame_at)
+        return {
+            "connected": st.connected,
+            "layout": st.layout,
+            "deadman": st.deadman_held,
+            "age_s": age,
+        }
+
+    # -- the pad ------------------------------------------------------------------
+
+    def prepare_pad(self) -> Callable[[], Any] | None:
+        """Resolve layout, mapping and reader now, so a mistake fails before anything moves."""
+        spec = self.options.pad
+        if spec == "none":
+            return None
+        try:
+            layout = resolve_layout(self.options.pad_layout)
+            mapping = load_mapping(layout)
+            open_pad(spec, layout=layout)
+        except registry.AdapterNotFound as exc:
+            if spec == "auto":
+                log.warning("no pad reader available (%s); running without a pad", exc)
+                return None
+            raise PadError(str(exc)) from exc
+        except (ConfigError, ValueError) as exc:
+            raise PadError(str(exc)) from exc
+        self.pad_info = {"layout": layout, "mapping": mapping.model_dump()}
+        self.pad_status = PadStatus(layout=layout)
+        base = BaseTeleop(mapping)
+        windows = {n: g.window_rad for n, g in self.geometry.items()}
+        arm_t = ArmTeleop(mapping, self.arm.names, windows, gripper=self.profile.arm.gripper)
+        opener = functools.partial(open_pad, spec, layout=layout)
+
+        async def run() -> None:
+            await run_pad(
+                opener,  # type: ignore[arg-type]
+                base,
+                arm_t,
+                submit_twist=self._pad_submit,
+                arm=self.arm,
+                clock=self.clock,
+                status=self.pad_status,
+            )
+
+        return run
+
+    def start_pad(self, run: Callable[[], Any]) -> None:
+        """Start reading the pad (after ready: a replay's t counts from this moment)."""
+        self._tasks.append(asyncio.create_task(run(), name="pad"))
+
+    def _pad_submit(self, source: str, twist: Twist) -> None:
+        # In takeover mode (or a profile without `joy`) the pad feeds `manual`.
+        if source not in self.mux_sources():
+            source = "manual"
+        self.submit_twist(source, twist)
 
     # -- commands used by the API and teleop -----------------------------------
 
@@ -379,4 +448,4 @@ class _HealAdapter:
         return done
 
 
-__all__ = ["BusOpenError", "Daemon", "DaemonOptions", "build_mux"]
+__all__ = ["BusOpenError", "Daemon", "DaemonOptions", "PadError", "build_mux"]
