@@ -9,6 +9,7 @@ timing luck. The pty path (adapters/sim/pty_server.py) is for end-to-end tests.
 from __future__ import annotations
 
 import asyncio
+from collections import deque
 from collections.abc import Callable, Sequence
 
 from lupin import protocol
@@ -37,6 +38,8 @@ class NullModemLink:
         self.latency_s = latency_s
         self.sent: list[bytes] = []
         self._rx = bytearray()
+        self._pending: deque[bytes] = deque()  # chunks due, delivered one per loop pass
+        self._dripping = False
         self._callback: Callable[[bytes], None] = lambda _data: None
         self._clock = clock
         self.closed = False
@@ -56,17 +59,36 @@ class NullModemLink:
             del self._rx[:consumed]
             if pkt is None:
                 break
+            chunks: list[bytes] = []
             for reply in self.responder(pkt, now):
-                chunks = self.manipulator(reply) if self.manipulator else [reply]
-                for chunk in chunks:
-                    if self.latency_s:
-                        loop.call_later(self.latency_s, self._deliver, bytes(chunk))
-                    else:
-                        loop.call_soon(self._deliver, bytes(chunk))
+                out = self.manipulator(reply) if self.manipulator else [reply]
+                chunks += (bytes(c) for c in out)
+            if not chunks:
+                continue
+            # One timer per request keeps its chunks in order (equal-time timers are not).
+            if self.latency_s:
+                loop.call_later(self.latency_s, self._enqueue, chunks)
+            else:
+                loop.call_soon(self._enqueue, chunks)
 
-    def _deliver(self, chunk: bytes) -> None:
-        if not self.closed:
-            self._callback(chunk)
+    def _enqueue(self, chunks: list[bytes]) -> None:
+        self._pending.extend(chunks)
+        if not self._dripping:
+            self._dripping = True
+            asyncio.get_running_loop().call_soon(self._drip)
+
+    def _drip(self) -> None:
+        # One chunk per event-loop pass, so the client really runs between the
+        # pieces of a split reply; delivered all in one pass, a split is invisible.
+        chunk = self._pending.popleft()
+        try:
+            if not self.closed:
+                self._callback(chunk)  # first, so a task it wakes runs before the next chunk
+        finally:
+            if self._pending:
+                asyncio.get_running_loop().call_soon(self._drip)
+            else:
+                self._dripping = False
 
     async def close(self) -> None:
         self.closed = True

@@ -18,12 +18,14 @@ import asyncio
 import contextlib
 import itertools
 import logging
+import time
 from collections import Counter
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Protocol
 
 from lupin import protocol
+from lupin.logs import Throttled
 from lupin.protocol import Packet
 
 log = logging.getLogger(__name__)
@@ -63,7 +65,12 @@ class SyncReadResult:
 
 @dataclass
 class BusStats:
-    """Counters for every kind of failure, for /metrics and the fault tests."""
+    """Counters for every kind of failure, for /metrics and the fault tests.
+
+    ``garbled`` and ``stray_bytes`` count bytes thrown away (the same however the
+    line chunked them); ``timeout`` and ``truncated`` count servos that gave no
+    valid reply; every other kind counts packets or retries.
+    """
 
     transactions: Counter[str] = field(default_factory=Counter)
     failures: Counter[str] = field(default_factory=Counter)
@@ -101,6 +108,8 @@ class ServoBus:
         self._seq = itertools.count()
         self._owner: asyncio.Task[None] | None = None
         self._closed = False
+        self._suspect = False  # replies of an earlier exchange may still be on the way
+        self._throttled = Throttled(log)
         link.set_receiver(self._on_bytes)
 
     # -- lifecycle ---------------------------------------------------------
@@ -156,7 +165,16 @@ class ServoBus:
     ) -> SyncReadResult:
         """One SYNC_READ; each servo answers with its own status packet."""
         pkt = protocol.sync_read(address, length, ids)
-        got = await self._request(pkt, tuple(ids), length, "sync_read", priority, retries)
+
+        # A retry asks only the servos still missing: re-asking all of them would
+        # put replies nobody waits for on the wire (counted as unexpected ids) and
+        # outrun a deadline sized for the missing ones.
+        def again(pending: Sequence[int]) -> bytes:
+            return protocol.sync_read(address, length, pending)
+
+        got = await self._request(
+            pkt, tuple(ids), length, "sync_read", priority, retries, rebuild=again
+        )
         result = SyncReadResult()
         for sid in ids:
             reply = got.get(sid)
@@ -192,6 +210,8 @@ class ServoBus:
         kind: str,
         priority: int,
         retries: int | None = None,
+        *,
+        rebuild: Callable[[Sequence[int]], bytes] | None = None,
     ) -> dict[int, Packet]:
         if self._closed:
             raise BusClosed("bus closed")
@@ -202,6 +222,8 @@ class ServoBus:
         for attempt in range(tries):
             fut: asyncio.Future[dict[int, Packet]] = asyncio.get_running_loop().create_future()
             pending = tuple(i for i in expect if i not in got)
+            if attempt and rebuild is not None:
+                packet = rebuild(pending)
             self._queue.put_nowait(
                 _Request(priority, next(self._seq), packet, pending, length, kind, fut)
             )
@@ -224,7 +246,7 @@ class ServoBus:
                     req.future.set_exception(BusClosed("bus closed"))
                 raise
             except Exception as exc:  # a broken link must not kill the owner silently
-                log.exception("bus transaction failed")
+                self._throttled.exception("link", "bus transaction failed", time.monotonic())
                 self.stats.fail("link")
                 if not req.future.done():
                     req.future.set_exception(exc)
@@ -241,6 +263,7 @@ class ServoBus:
             # Late bytes of an earlier exchange: drop them so they are not taken for this one.
             self.stats.fail("stray_bytes", len(self._rx))
             self._rx.clear()
+            self._suspect = True
         self.stats.transactions[req.kind] += 1
         self.stats.bytes_out += len(req.packet)
         self.link.write(req.packet)
@@ -257,9 +280,14 @@ class ServoBus:
         )
         got: dict[int, Packet] = {}
         wanted = set(req.expect)
+        # A status packet names no request. After a lost, late or stray reply, more
+        # late ones may still come, ahead of ours: taking the first for our answer
+        # would leave the bus one answer behind for good. So listen until the
+        # deadline and let each servo's last reply (the line is FIFO) win.
+        listen_out, self._suspect = self._suspect, False
         while True:
             self._parse(got, wanted, req)
-            if wanted <= got.keys():
+            if wanted <= got.keys() and not listen_out:
                 break
             remaining = deadline - loop.time()
             if remaining <= 0:
@@ -275,6 +303,7 @@ class ServoBus:
         missing = wanted - got.keys()
         if missing:
             self.stats.fail("truncated" if self._rx else "timeout", len(missing))
+            self._suspect = True
         return got
 
     def _parse(self, got: dict[int, Packet], wanted: set[int], req: _Request) -> None:
@@ -282,18 +311,26 @@ class ServoBus:
             consumed, pkt = protocol.decode(self._rx)
             if pkt is None:
                 if consumed:
-                    self.stats.fail("garbled")
+                    self.stats.fail("garbled", consumed)
                     del self._rx[:consumed]
                     continue
                 return
             del self._rx[:consumed]
+            # decode() skips noise and corrupt or cut packets in front of a good one
+            # silently: count those bytes too, or a corrupt reply reads as a mere timeout.
+            skipped = consumed - (len(pkt.params) + STATUS_OVERHEAD)
+            if skipped:
+                self.stats.fail("garbled", skipped)
             if pkt.id not in wanted:
                 self.stats.fail("unexpected_id")
+                self._suspect = True
             elif len(pkt.params) != req.length:
                 self.stats.fail("wrong_length")
+                self._suspect = True
             else:
                 if pkt.id in got:
                     self.stats.fail("duplicate")  # a late reply of an earlier exchange
+                    self._suspect = True
                 got[pkt.id] = pkt  # the last one wins: it is the fresh one
                 if pkt.code:
                     self.stats.fail("servo_error")

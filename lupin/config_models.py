@@ -29,7 +29,7 @@ class BusConfig(Strict):
     port: str = "/dev/lupin_servos"
     baud: Literal[38400, 57600, 115200, 128000, 250000, 500000, 1000000] = 1_000_000
     # Extra time on top of the computed wire time before a reply counts as missing.
-    reply_margin_s: Annotated[float, Field(gt=0, le=0.5)] = 0.004
+    reply_margin_s: Annotated[float, Field(gt=0, le=0.5)] = 0.006
     retries: Annotated[int, Field(ge=0, le=5)] = 1
 
 
@@ -79,8 +79,9 @@ class ArmConfig(Strict):
     envelope_deg: Annotated[float, Field(gt=0, le=180)] = 90.0
     joints: Annotated[list[JointConfig], Field(min_length=1)]
     gripper: GripperConfig | None = None
-    # Tolerance for "settled", lag for "stalled", and the resync threshold (runbook 0.08 rad).
-    goal_tolerance_rad: Annotated[float, Field(gt=0, le=0.5)] = 0.03
+    # Tolerance for "settled" (above the droop of a gravity-loaded joint: the seed measured
+    # 0.031 rad at Kp 32) and the resync threshold (runbook 0.08 rad).
+    goal_tolerance_rad: Annotated[float, Field(gt=0, le=0.5)] = 0.05
     resync_threshold_rad: Annotated[float, Field(gt=0, le=1.0)] = 0.08
     preset_travel_s: PositiveFloat = 3.0
     init_travel_s: PositiveFloat = 3.0
