@@ -101,6 +101,7 @@ class JointState(Response):
     voltage_v: float | None
     commanded_deg: float | None
     target_deg: float | None
+    setpoint_deg: float | None = None  # what this tick drives the joint to (the ramp)
     status: Literal["idle", "moving", "settled", "stalled"]
     torque: Literal["on", "off", "unknown", "enabling"]
     excluded: str | None = None
@@ -173,6 +174,17 @@ class GripperInfo(Response):
     joint: str
     hmi_open_deg: float
     hmi_closed_deg: float
+    # The joint angles at the open and closed ends, so a measured jaw can be shown on the
+    # HMI's open/close scale.
+    open_rad: float
+    closed_rad: float
+
+
+class BaseInfo(Response):
+    kind: Literal["differential", "mecanum"]
+    holonomic: bool  # can strafe (linear_y)
+    max_linear_m_s: float  # a wheel at its speed limit
+    max_angular_rad_s: float
 
 
 class RobotInfo(Response):
@@ -180,6 +192,7 @@ class RobotInfo(Response):
     description: str
     joints: list[JointInfo]
     gripper: GripperInfo | None
+    base: BaseInfo | None = None
     presets: dict[str, dict[str, float]]  # degrees
     pad_layout: dict[str, object] | None
     mux_sources: dict[str, SourceState]

@@ -96,6 +96,7 @@ class ControlLoop:
         self._stop = asyncio.Event()
         self.first_state = asyncio.Event()
         self.on_tick: list[Callable[[float], None]] = []
+        self.on_state: list[Callable[[float], None]] = []  # right after the measurement
         self._throttled = Throttled(log)
 
     # -- torque requests (served one joint per tick) ------------------------------
@@ -213,6 +214,9 @@ class ControlLoop:
             if geo is not None:
                 measured[geo.name] = geo.counts_to_rad(r.position)
         self.arm.observe(measured, now)
+        # Before any await: whoever reads state mid-tick sees status and events agree.
+        for callback in self.on_state:
+            callback(now)
         if measured and len(measured) == len(self.arm_joints):
             self.first_state.set()
         if self._enable_queue:

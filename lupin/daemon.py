@@ -146,7 +146,7 @@ class Daemon:
             clock=self.clock,
         )
         await self.verify_servos()
-        self.loop.on_tick.append(self._after_tick)
+        self.loop.on_state.append(self._after_tick)
         self._spawn("control-loop", self.loop.run)
         self._spawn("resume-watch", self._watch_resume)
         want_home = self.options.auto_home
@@ -174,8 +174,12 @@ class Daemon:
 
         self._tasks.append(asyncio.create_task(supervised(), name=name))
 
-    async def stop(self) -> None:
-        """Stop ticking, zero the wheels, limp the arm, release the port."""
+    async def stop(self) -> bool:
+        """Stop ticking, zero the wheels, limp the arm, release the port.
+
+        Returns False when the safe-stop sequence could not be sent.
+        """
+        safe = self.loop is None
         if self.loop is not None:
             self.loop.stop()
         for task in self._tasks:
@@ -188,12 +192,17 @@ class Daemon:
         if self.loop is not None and self.bus is not None:
             try:
                 await asyncio.wait_for(self.loop.safe_stop(), 0.3)
+                safe = True
             except Exception:
                 log.exception("could not send the safe-stop sequence")
         if self.bus is not None:
             await self.bus.close()
             self.bus = None
-        log.info("stopped: wheels zeroed, arm limp, port released")
+        if safe:
+            log.info("stopped: wheels zeroed, arm limp, port released")
+        else:
+            log.error("stopped WITHOUT the safe-stop sequence: the stop helper must limp the arm")
+        return safe
 
     async def wait_ready(self, timeout: float = 5.0) -> bool:
         """True once the first full joint state has been read."""

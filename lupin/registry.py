@@ -17,7 +17,11 @@ BUILTIN: dict[str, dict[str, str]] = {
         "serial": "lupin_adapters.serial_link:open_link",
         "sim": "lupin_adapters.sim.link:open_link",
     },
-    "lupin.joystick": {},
+    "lupin.joystick": {
+        "evdev": "lupin_adapters.pads.evdev_reader:EvdevReader",
+        "hid": "lupin_adapters.pads.hid_reader:HidReader",
+        "replay": "lupin_adapters.pads.replay:ReplayReader",
+    },
 }
 
 

@@ -82,15 +82,33 @@ class Services:
                 for g in geo.values()
             ],
             gripper=m.GripperInfo(
-                joint=grip.joint, hmi_open_deg=grip.hmi_open_deg, hmi_closed_deg=grip.hmi_closed_deg
+                joint=grip.joint,
+                hmi_open_deg=grip.hmi_open_deg,
+                hmi_closed_deg=grip.hmi_closed_deg,
+                open_rad=grip.open_rad,
+                closed_rad=grip.closed_rad,
             )
             if grip
             else None,
+            base=self._base_info(),
             presets=self.list_presets().presets,
             pad_layout=self.d.pad_layout_info(),
             mux_sources=self._mux_state().sources,
             default_speed_deg_s=self.profile.arm.default_speed_deg_s,
             state_hz=self.profile.api.state_hz,
+        )
+
+    def _base_info(self) -> m.BaseInfo | None:
+        b = self.profile.base
+        if b is None:
+            return None
+        v = b.max_wheel_speed_rad_s * b.wheel_radius_m
+        half = b.track_width_m / 2 + (b.wheelbase_m or 0.0) / 2
+        return m.BaseInfo(
+            kind=b.kind,
+            holonomic=b.kind == "mecanum",
+            max_linear_m_s=v,
+            max_angular_rad_s=v / half,
         )
 
     def _mux_state(self) -> m.MuxState:
@@ -116,6 +134,7 @@ class Services:
         arm = self.d.arm
         loop = self.d.loop
         status = arm.traj.status()
+        setpoints = arm.traj.sample(now) if arm.seeded else {}
         joints = []
         for name, g in self.d.geometry.items():
             r = loop.readings.get(g.id) if loop else None
@@ -135,6 +154,7 @@ class Services:
                     voltage_v=r.voltage_v if r else None,
                     commanded_deg=math.degrees(commanded) if commanded is not None else None,
                     target_deg=math.degrees(target) if target is not None else None,
+                    setpoint_deg=math.degrees(setpoints[name]) if name in setpoints else None,
                     status="stalled"
                     if name in arm.stalled
                     else (status.get(name) or JointStatus.IDLE).value,

@@ -19,22 +19,24 @@ from lupin.logs import setup_logging
 HANDLERS: dict[str, str] = {
     "run": "lupin.cli.run:main",
     "sim": "lupin_adapters.sim.cli:main",
+    "check": "lupin.cli.check:main",
+    "calibrate": "lupin.cli.calibrate:main",
+    "offsets": "lupin.cli.offsets:main",
+    "gains": "lupin.cli.gains:main",
+    "pad-calibrate": "lupin.cli.pad_calibrate:main",
+    "pad-record": "lupin.cli.pad_record:main",
+    "bt-fix": "lupin.cli.bt_fix:main",
+    "stop-helper": "lupin.cli.stop_helper:main",
+    "install-service": "lupin.cli.install_service:main",
+    "heal": "lupin.cli.heal:main",
 }
 
 # What is still to come, said plainly rather than faked.
 PENDING: dict[str, str] = {
     "run": "the daemon (issue: the daemon)",
     "sim": "the simulated bus (issue: the Feetech bus)",
-    "check": "bench tools",
-    "calibrate": "bench tools",
-    "offsets": "bench tools",
-    "gains": "bench tools",
     "pose": "bench tools over the API",
     "jog": "bench tools over the API",
-    "heal": "the API",
-    "pad-calibrate": "pad teleop",
-    "pad-record": "pad teleop",
-    "bt-fix": "pad teleop",
 }
 
 EXIT_NOT_AVAILABLE = 3

@@ -63,6 +63,47 @@ def _pad_spec(text: str) -> str:
     return text
 
 
+def _id_range(text: str) -> range:
+    first, sep, last = text.partition("-")
+    try:
+        lo, hi = int(first), int(last) if sep else int(first)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"bad id range {text!r}: use FIRST-LAST") from None
+    if not 0 <= lo <= hi <= 253:
+        raise argparse.ArgumentTypeError(f"bad id range {text!r}: ids are 0-253, first <= last")
+    return range(lo, hi + 1)
+
+
+def _gain_list(text: str) -> list[int]:
+    try:
+        values = [int(v) for v in text.split(",")]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"bad gain list {text!r}: use e.g. 16,32,64") from None
+    if not all(0 <= v <= 254 for v in values):
+        raise argparse.ArgumentTypeError(f"gains are 0-254: {text!r}")
+    return values
+
+
+def _gain_speed(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a whole number: {text!r}") from None
+    if not 1 <= value <= 3000:
+        raise argparse.ArgumentTypeError(f"speed must be 1-3000 counts/s: {text!r}")
+    return value
+
+
+def _joint_counts(text: str) -> tuple[str, int]:
+    name, sep, value = text.partition("=")
+    try:
+        if not sep or not name:
+            raise ValueError
+        return name, int(value)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"bad {text!r}: use JOINT=COUNTS") from None
+
+
 class _Parser(argparse.ArgumentParser):
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         kwargs.setdefault("allow_abbrev", False)
@@ -113,6 +154,9 @@ def build_parser() -> argparse.ArgumentParser:
     check = sub.add_parser("check", help="enumerate servos, health and zero snapshot")
     _common(check)
     _robot(check)
+    check.add_argument(
+        "--scan", type=_id_range, default=range(0, 21), help="ids to scan for strays (default 0-20)"
+    )
 
     cal = sub.add_parser("calibrate", help="two-phase range and zero calibration")
     _common(cal)
@@ -121,22 +165,53 @@ def build_parser() -> argparse.ArgumentParser:
     cal.add_argument("--skip-homing", action="store_true")
     cal.add_argument("--joints", help="comma-separated joints to redo")
 
-    offsets = sub.add_parser("offsets", help="servo homing offsets: show|backup|restore|set")
-    _common(offsets)
-    _robot(offsets)
-    offsets.add_argument("action", choices=("show", "backup", "restore", "set"))
-    offsets.add_argument("values", nargs="*", help="for set: JOINT=COUNTS ...")
-    offsets.add_argument("--file", help="backup file (default $LUPIN_HOME/arm_offsets_backup.yaml)")
+    offsets = sub.add_parser(
+        "offsets",
+        help="servo homing offsets: show|backup|restore|set|export-lerobot|import-lerobot",
+    )
+    actions = offsets.add_subparsers(dest="action", metavar="ACTION", parser_class=_Parser)
+    actions.required = True
+    for name, text in (
+        ("show", "read every arm servo's homing offset"),
+        ("backup", "snapshot the offsets to the backup file"),
+        ("restore", "write the backup file's offsets back, verified"),
+        ("set", "write offsets by hand: JOINT=COUNTS ..."),
+        ("export-lerobot", "write the calibration as LeRobot's per-motor JSON"),
+        ("import-lerobot", "write a LeRobot calibration JSON to the servos and arm.yaml"),
+    ):
+        action = actions.add_parser(name, help=text)
+        _common(action)
+        _robot(action)
+        if name in ("backup", "restore"):
+            action.add_argument(
+                "--file", help="backup file (default $LUPIN_HOME/arm_offsets_backup.yaml)"
+            )
+        if name == "set":
+            action.add_argument("values", nargs="+", type=_joint_counts, metavar="JOINT=COUNTS")
+        if name in ("export-lerobot", "import-lerobot"):
+            action.add_argument("file", help="LeRobot calibration JSON")
 
     gains = sub.add_parser("gains", help="servo PID gains: show|apply|sweep")
-    _common(gains)
-    _robot(gains)
-    gains.add_argument("action", choices=("show", "apply", "sweep"))
-    gains.add_argument("--joint")
-    gains.add_argument("--kp", default="16,32,64,128")
-    gains.add_argument("--ki", default="0")
-    gains.add_argument("--step", type=_finite_float, default=-0.2)
-    gains.add_argument("--max-temp", type=_positive_float, default=55.0)
+    gain_actions = gains.add_subparsers(dest="action", metavar="ACTION", parser_class=_Parser)
+    gain_actions.required = True
+    for name, text in (
+        ("show", "compare servo EEPROM gains with the profile (read-only)"),
+        ("apply", "write the profile's gains, verified by a double read-back"),
+    ):
+        action = gain_actions.add_parser(name, help=text)
+        _common(action)
+        _robot(action)
+        action.add_argument("--joints", help="comma-separated joints (default: every arm joint)")
+    sweep = gain_actions.add_parser("sweep", help="step one joint under each candidate gain set")
+    _common(sweep)
+    _robot(sweep)
+    sweep.add_argument("--joint", required=True)
+    sweep.add_argument("--kp", type=_gain_list, default=[16, 32, 64, 128], help="e.g. 16,32,64")
+    sweep.add_argument("--ki", type=_gain_list, default=[0], help="e.g. 0,1,2")
+    sweep.add_argument("--step", type=_finite_float, default=-0.2, help="rad (default -0.2)")
+    sweep.add_argument("--max-temp", type=_positive_float, default=55.0, help="°C (default 55)")
+    sweep.add_argument("--speed", type=_gain_speed, default=500, help="counts/s (default 500)")
+    sweep.add_argument("--hold", type=_positive_float, default=1.5, help="s sampled per step")
 
     pose = sub.add_parser("pose", help="taught poses (client of the daemon)")
     _common(pose)
@@ -173,6 +248,23 @@ def build_parser() -> argparse.ArgumentParser:
     bt.add_argument("--main-conf", default="/etc/bluetooth/main.conf")
     bt.add_argument("--device", help="pad MAC address whose stale bond to remove")
     bt.add_argument("--dry-run", action="store_true")
+
+    stop = sub.add_parser(
+        "stop-helper", help="zero the wheels and limp every servo after a crash (ExecStopPost)"
+    )
+    _common(stop)
+    stop.add_argument("--profile", help="robot profile name or YAML path (default so101)")
+    stop.add_argument("--config", help="site config YAML merged over the profile")
+    stop.add_argument("--bus-port", help="serial device, overriding the profile's")
+    stop.add_argument("--timeout", type=_positive_float, default=3.0, help="s overall (default 3)")
+
+    inst = sub.add_parser("install-service", help="install the systemd unit, udev rule and config")
+    _common(inst)
+    inst.add_argument("--dry-run", action="store_true", help="print every action, write nothing")
+    inst.add_argument("--user", help="user the daemon runs as (default: $SUDO_USER)")
+    inst.add_argument("--prefix", help="venv or prefix holding bin/lupin (default: this one)")
+    inst.add_argument("--profile", default="so101", help="profile for a new site config")
+    inst.add_argument("--root", default="/", help="install under this directory (default /)")
 
     parser.set_defaults(_subparsers=sub.choices)
     return parser

@@ -23,6 +23,8 @@ SUBCOMMANDS = [
     "pad-calibrate",
     "pad-record",
     "bt-fix",
+    "stop-helper",
+    "install-service",
 ]
 
 

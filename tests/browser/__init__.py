@@ -1,0 +1,1 @@
+"""Browser tests: the HMI in headless Chromium against ``lupin run --sim``."""
