@@ -15,6 +15,8 @@ from pathlib import Path
 
 import pytest
 
+pytest_plugins = ["lupintest.fixtures"]
+
 
 def _children() -> set[int]:
     me = str(os.getpid())

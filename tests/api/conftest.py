@@ -9,38 +9,15 @@ from __future__ import annotations
 
 import logging
 from collections.abc import AsyncIterator, Iterator
-from pathlib import Path
 
 import aiohttp
 import pytest
 
 from lupin.api import ApiServer
 from lupin.api.ws import WsSettings
-from lupin.config import load_profile
-from lupin.daemon import Daemon, DaemonOptions
-from lupintest.harness import Sim, start_sim
+from lupin.daemon import Daemon
 
 TOKEN = "tok-7f3a9c1e5b2d4f60a8e1c3b5d7f9a0b2"
-
-
-@pytest.fixture()
-async def sim(lupin_home: Path) -> AsyncIterator[Sim]:
-    s = await start_sim(load_profile("so101"))
-    try:
-        yield s
-    finally:
-        await s.server.close()
-
-
-@pytest.fixture()
-async def daemon(sim: Sim) -> AsyncIterator[Daemon]:
-    d = Daemon(sim.profile, DaemonOptions(bus_port=sim.path, auto_home=False))
-    await d.start()
-    try:
-        assert await d.wait_ready(3.0), "no complete joint state from the sim"
-        yield d
-    finally:
-        await d.stop()
 
 
 async def start_api(

@@ -12,18 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from lupin.config import load_profile
-from lupintest.harness import Sim, start_sim
 from lupintest.notify import NotifySocket
-
-
-@pytest.fixture()
-async def sim(lupin_home: Path) -> AsyncIterator[Sim]:
-    s = await start_sim(load_profile("so101"))
-    try:
-        yield s
-    finally:
-        await s.server.close()
 
 
 @pytest.fixture()
