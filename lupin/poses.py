@@ -17,7 +17,7 @@ import os
 import re
 import shutil
 import tempfile
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from pathlib import Path
 
 import yaml
@@ -91,12 +91,21 @@ class PoseStore:
 
     def limits(self) -> dict[str, tuple[float, float]]:
         """The envelope spanned by the taught poses, per joint: for narrowing, not calibrating."""
-        out: dict[str, tuple[float, float]] = {}
-        for pose in self.load().values():
-            for joint, v in pose.items():
-                lo, hi = out.get(joint, (v, v))
-                out[joint] = (min(lo, v), max(hi, v))
-        return out
+        return envelope(self.load().values())
+
+
+def envelope(poses: Iterable[Mapping[str, float]]) -> dict[str, tuple[float, float]]:
+    """Per joint, the (min, max) radians over ``poses``; a joint no pose names is absent.
+
+    Shared by :meth:`PoseStore.limits` and ``lupin pose limits`` (which gets the
+    poses over the API), so the two cannot disagree.
+    """
+    out: dict[str, tuple[float, float]] = {}
+    for pose in poses:
+        for joint, v in pose.items():
+            lo, hi = out.get(joint, (v, v))
+            out[joint] = (min(lo, v), max(hi, v))
+    return out
 
 
 def largest_travel(start: Mapping[str, float], goal: Mapping[str, float]) -> float:

@@ -26,10 +26,28 @@ EXIT_NOPERM = 77  # EX_NOPERM: token missing or wrong
 
 
 class ApiClientError(Exception):
-    def __init__(self, message: str, exit_code: int = EXIT_FAILED, status: int | None = None):
+    """A request that did not succeed: ``code`` is the daemon's error code when it refused.
+
+    A refusal (``exit_code`` 1) carries the daemon's ``code`` (``too_far``,
+    ``torque_off``, ``unknown_pose``...) and ``reason`` (its message alone), so a
+    client can add advice for the cases it knows; every other failure has
+    ``code`` None.
+    """
+
+    def __init__(
+        self,
+        message: str,
+        exit_code: int = EXIT_FAILED,
+        status: int | None = None,
+        *,
+        code: str | None = None,
+        reason: str | None = None,
+    ):
         super().__init__(message)
         self.exit_code = exit_code
         self.status = status
+        self.code = code
+        self.reason = reason if reason is not None else message
 
 
 class ApiClient:
@@ -91,8 +109,11 @@ class ApiClient:
                 EXIT_UNAVAILABLE,
                 status,
             )
-        message = f"{error.get('message')} ({error.get('code')})"
+        code, reason = str(error.get("code")), str(error.get("message"))
+        message = f"{reason} ({code})"
         if status == 401:
             hint = "" if self.token else f"; pass --token or set {TOKEN_ENV}"
-            raise ApiClientError(f"refused: {message}{hint}", EXIT_NOPERM, status)
-        raise ApiClientError(f"refused: {message}", EXIT_FAILED, status)
+            raise ApiClientError(
+                f"refused: {message}{hint}", EXIT_NOPERM, status, code=code, reason=reason
+            )
+        raise ApiClientError(f"refused: {message}", EXIT_FAILED, status, code=code, reason=reason)

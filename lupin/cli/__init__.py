@@ -29,14 +29,14 @@ HANDLERS: dict[str, str] = {
     "stop-helper": "lupin.cli.stop_helper:main",
     "install-service": "lupin.cli.install_service:main",
     "heal": "lupin.cli.heal:main",
+    "pose": "lupin.cli.pose:main",
+    "jog": "lupin.cli.jog:main",
 }
 
 # What is still to come, said plainly rather than faked.
 PENDING: dict[str, str] = {
     "run": "the daemon (issue: the daemon)",
     "sim": "the simulated bus (issue: the Feetech bus)",
-    "pose": "bench tools over the API",
-    "jog": "bench tools over the API",
 }
 
 EXIT_NOT_AVAILABLE = 3

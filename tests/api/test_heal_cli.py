@@ -5,7 +5,6 @@ from __future__ import annotations
 import asyncio
 import re
 import signal
-import socket
 from pathlib import Path
 
 import aiohttp
@@ -14,36 +13,7 @@ from lupin.api import ApiServer
 from lupintest.harness import child_env, lupin_cmd
 
 from .conftest import TOKEN
-
-
-async def lupin(
-    home: Path, *args: str, token: str | None = None, timeout: float = 20.0
-) -> tuple[int, str, str]:
-    env = child_env(home)
-    env.pop("LUPIN_TOKEN", None)
-    if token is not None:
-        env["LUPIN_TOKEN"] = token
-    proc = await asyncio.create_subprocess_exec(
-        *lupin_cmd(*args),
-        stdout=asyncio.subprocess.PIPE,
-        stderr=asyncio.subprocess.PIPE,
-        env=env,
-    )
-    try:
-        async with asyncio.timeout(timeout):
-            out, err = await proc.communicate()
-    finally:
-        if proc.returncode is None:
-            proc.kill()
-            await proc.wait()
-    assert proc.returncode is not None
-    return proc.returncode, out.decode(), err.decode()
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
+from .helpers import free_port, lupin
 
 
 async def test_heal_against_the_running_daemon(api: ApiServer, lupin_home: Path) -> None:
