@@ -15,7 +15,7 @@ from lupin.cli.parser import parse_args
 from lupin.config import ConfigError
 from lupin.logs import setup_logging
 
-# command -> "module:function"; a command missing here has not landed yet.
+# command -> "module:function", imported only when that command runs (a fast `--help`).
 HANDLERS: dict[str, str] = {
     "run": "lupin.cli.run:main",
     "sim": "lupin_adapters.sim.cli:main",
@@ -33,14 +33,6 @@ HANDLERS: dict[str, str] = {
     "jog": "lupin.cli.jog:main",
 }
 
-# What is still to come, said plainly rather than faked.
-PENDING: dict[str, str] = {
-    "run": "the daemon (issue: the daemon)",
-    "sim": "the simulated bus (issue: the Feetech bus)",
-}
-
-EXIT_NOT_AVAILABLE = 3
-
 
 def main(argv: Sequence[str] | None = None) -> int:
     args = parse_args(argv)
@@ -49,12 +41,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 def dispatch(args: argparse.Namespace) -> int:
-    target = HANDLERS.get(args.command)
-    if target is None:
-        what = PENDING.get(args.command, "this command")
-        print(f"lupin {args.command}: not available yet; it lands with {what}.", file=sys.stderr)
-        return EXIT_NOT_AVAILABLE
-    module_name, func_name = target.split(":")
+    module_name, func_name = HANDLERS[args.command].split(":")
     func = getattr(importlib.import_module(module_name), func_name)
     try:
         return int(func(args))
