@@ -115,6 +115,8 @@ class WheelState(Response):
     speed_counts_s: int | None
     goal_counts_s: int
     excluded: str | None = None
+    error_bits: int = 0
+    stale: bool = False  # missed the last read
 
 
 class SourceState(Response):
@@ -135,6 +137,8 @@ class MuxState(Response):
 class BaseState(Response):
     twist: dict[str, float] | None
     wheels: list[WheelState]
+    # Why the base refuses to drive (a wheel excluded or not answering), or None.
+    blocked: str | None = None
 
 
 class PadState(Response):

@@ -168,6 +168,7 @@ class Services:
         if self.d.base is not None and loop is not None:
             twist = self.d.base.current_twist(now)
             goals = self.d.base.wheel_goals(now)
+            blocked = loop.base_blocked()
             base = m.BaseState(
                 twist=None
                 if twist is None
@@ -183,11 +184,14 @@ class Services:
                         speed_counts_s=loop.readings[w.id].speed
                         if loop.readings[w.id].t > 0
                         else None,
-                        goal_counts_s=0 if self.d.estop else goals.get(w.id, 0),
+                        goal_counts_s=0 if self.d.estop or blocked else goals.get(w.id, 0),
                         excluded=loop.wheels_excluded.get(w.id),
+                        error_bits=loop.readings[w.id].error,
+                        stale=bool(loop.readings[w.id].misses),
                     )
                     for w in self.d.base.config.wheels
                 ],
+                blocked=blocked,
             )
         return m.RobotState(
             t=now,

@@ -1,0 +1,1 @@
+"""The reliability suite: faults, hostile input, security, soak, shutdown and restart."""
