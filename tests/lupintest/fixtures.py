@@ -15,6 +15,20 @@ from lupin.config import load_profile
 from lupin.daemon import Daemon, DaemonOptions
 from lupintest.harness import Sim, start_sim
 
+DEFAULT_SOAK_SECONDS = 60.0  # keeps the whole suite inside its CI budget
+
+
+def pytest_addoption(parser: pytest.Parser) -> None:
+    # Here, not in tests/reliability/conftest.py: a sub-folder's conftest is read
+    # after the command line is parsed, so the flag would be refused from the root.
+    parser.addoption(
+        "--soak-seconds",
+        type=float,
+        default=None,
+        help=f"how long the reliability soak runs (default {DEFAULT_SOAK_SECONDS:.0f} s, "
+        "or $LUPIN_SOAK_SECONDS)",
+    )
+
 
 @pytest.fixture()
 async def sim(lupin_home: Path) -> AsyncIterator[Sim]:
