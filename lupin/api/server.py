@@ -12,7 +12,7 @@ from collections.abc import Mapping
 
 from aiohttp import web
 
-from lupin.api import routes, static
+from lupin.api import logsafe, routes, static
 from lupin.api.contract import ApiServices
 from lupin.api.errors import error_middleware
 from lupin.api.metrics import CONTENT_TYPE, Metrics
@@ -117,7 +117,13 @@ class ApiServer:
 
     async def start(self) -> str:
         """Listen; return the base URL with the real port."""
-        runner = web.AppRunner(self.app, handle_signals=False, shutdown_timeout=1.0)
+        logsafe.install()  # the token must not reach the log through aiohttp's own lines
+        runner = web.AppRunner(
+            self.app,
+            handle_signals=False,
+            shutdown_timeout=1.0,
+            access_log_class=logsafe.SafeAccessLogger,
+        )
         await runner.setup()
         site = web.TCPSite(runner, self.config.host, self.config.port, ssl_context=self.ssl)
         try:

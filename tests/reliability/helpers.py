@@ -239,3 +239,110 @@ class DaemonProcess:
             await self.proc.wait()
         with contextlib.suppress(asyncio.CancelledError, TimeoutError):
             await asyncio.wait_for(self._reader, 2.0)
+
+
+# -- security, soak, shutdown and restart (appended) --------------------------------------
+
+
+class MergedDaemonProcess(DaemonProcess):
+    """``lupin run`` with stdout and stderr in one captured stream: nothing it prints escapes."""
+
+    @classmethod
+    async def spawn(
+        cls,
+        sim: Sim,
+        home: Path,
+        *args: str,
+        port: int | None = None,
+        env: dict[str, str] | None = None,
+    ) -> DaemonProcess:
+        return await cls.spawn_on(sim.path, home, *args, port=port, env=env)
+
+    @classmethod
+    async def spawn_on(
+        cls,
+        bus_port: str,
+        home: Path,
+        *args: str,
+        port: int | None = None,
+        env: dict[str, str] | None = None,
+    ) -> MergedDaemonProcess:
+        port = port or free_port()
+        proc = await asyncio.create_subprocess_exec(
+            *lupin_cmd("run", "--port", str(port), "--bus-port", bus_port, *args),
+            stdout=asyncio.subprocess.PIPE,
+            stderr=asyncio.subprocess.STDOUT,
+            env=child_env(home) | (env or {}),
+        )
+        return cls(proc, port)
+
+    async def _read(self) -> None:
+        assert self.proc.stdout is not None
+        while line := await self.proc.stdout.readline():
+            self.lines.append(line.decode(errors="replace"))
+
+
+@dataclass
+class SimProcess:
+    """``lupin sim`` in its own process: a bus whose timing no test-side load can disturb."""
+
+    proc: asyncio.subprocess.Process
+    path: str
+
+    @classmethod
+    async def spawn(cls, home: Path) -> SimProcess:
+        proc = await asyncio.create_subprocess_exec(
+            *lupin_cmd("sim"),
+            stdout=asyncio.subprocess.PIPE,
+            stderr=asyncio.subprocess.DEVNULL,
+            env=child_env(home),
+        )
+        assert proc.stdout is not None
+        try:
+            async with asyncio.timeout(15):
+                path = (await proc.stdout.readline()).decode().strip()
+        except BaseException:
+            proc.kill()
+            await proc.wait()
+            raise
+        assert path.startswith("/dev/"), f"lupin sim printed {path!r}, not a pty path"
+        return cls(proc, path)
+
+    async def close(self) -> None:
+        if self.proc.returncode is None:
+            self.proc.send_signal(signal.SIGTERM)
+            try:
+                async with asyncio.timeout(5):
+                    await self.proc.wait()
+            except TimeoutError:
+                self.proc.kill()
+                await self.proc.wait()
+
+
+def period_buckets(metrics: dict[str, float]) -> dict[float, float]:
+    """``{upper bound (s): cumulative count}`` of the tick-period histogram of one scrape."""
+    prefix = 'lupin_tick_period_seconds_bucket{le="'
+    out: dict[float, float] = {}
+    for key, value in metrics.items():
+        if key.startswith(prefix):
+            out[float(key[len(prefix) : -2])] = value
+    return out
+
+
+def periods_within(before: dict[str, float], after: dict[str, float], bound_s: float) -> float:
+    """The fraction of tick periods between two scrapes that were at most ``bound_s`` long.
+
+    ``bound_s`` must be one of the histogram's bucket bounds.
+    """
+    b, a = period_buckets(before), period_buckets(after)
+    inf = float("inf")
+    total = a[inf] - b.get(inf, 0.0)
+    assert total > 0, "no tick between the two scrapes"
+    bound = min(a, key=lambda x: abs(x - bound_s))
+    assert abs(bound - bound_s) < 1e-9, f"{bound_s} is not a bucket bound: {sorted(a)}"
+    return (a[bound] - b.get(bound, 0.0)) / total
+
+
+def tick_rate(before: dict[str, float], after: dict[str, float], seconds: float) -> float:
+    """Ticks per second between two scrapes ``seconds`` apart."""
+    return (after["lupin_ticks_total"] - before["lupin_ticks_total"]) / seconds
