@@ -10,11 +10,8 @@ types into, as an operator would.
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import math
-import os
 import re
-import subprocess
 import time
 from collections.abc import AsyncIterator, Callable
 from pathlib import Path
@@ -26,13 +23,13 @@ import yaml
 from lupin.api import ApiServer
 from lupin.daemon import Daemon
 from lupin.joints import RAD_PER_COUNT
-from lupintest.harness import Sim, child_env, lupin_cmd, wait_for
+from lupintest.harness import Sim, child_env, wait_for
+from lupintest.pty_tool import PtyTool
 
 from .conftest import TOKEN
 from .helpers import call, free_port, lupin, torque_on
 
 ELBOW_ID = 3
-ANSI = re.compile(r"\x1b\[[0-9;]*[A-Za-z]")
 
 
 def commanded(daemon: Daemon, joint: str = "elbow_flex") -> float:
@@ -226,86 +223,11 @@ async def test_pose_limits_spans_the_taught_poses(
 # -- lupin jog ----------------------------------------------------------------------------
 
 
-class PtyJog:
-    """``python -m lupin jog ...`` on a pseudo-terminal the test holds the master end of."""
-
-    def __init__(self, home: Path, *args: str) -> None:
-        master, slave = os.openpty()
-        self.proc = subprocess.Popen(
-            lupin_cmd("jog", *args),
-            stdin=slave,
-            stdout=slave,
-            stderr=slave,
-            env=child_env(home),
-            close_fds=True,
-            start_new_session=True,
-        )
-        os.close(slave)  # the child holds it; EIO on the master means it has gone
-        os.set_blocking(master, False)
-        self.master: int | None = master
-        self.raw = b""
-        self.seen = 0  # expect() searches only after the previous match
-        self._changed = asyncio.Event()
-        asyncio.get_running_loop().add_reader(master, self._on_readable)
-
-    @property
-    def output(self) -> str:
-        return ANSI.sub("", self.raw.decode(errors="replace")).replace("\r", "")
-
-    def _on_readable(self) -> None:
-        assert self.master is not None
-        try:
-            data = os.read(self.master, 65536)
-        except BlockingIOError:
-            return
-        except OSError:  # EIO: the child has exited
-            data = b""
-        if not data:
-            asyncio.get_running_loop().remove_reader(self.master)
-        self.raw += data
-        self._changed.set()
-
-    async def expect(self, text: str, timeout: float = 15.0) -> str:
-        """Wait for ``text`` after the last match; return the output between the two."""
-        try:
-            async with asyncio.timeout(timeout):
-                while (at := self.output.find(text, self.seen)) < 0:
-                    if self.proc.poll() is not None and not self._changed.is_set():
-                        raise AssertionError(
-                            f"exited {self.proc.returncode} before {text!r}:\n{self.output}"
-                        )
-                    self._changed.clear()
-                    with contextlib.suppress(TimeoutError):
-                        async with asyncio.timeout(0.1):
-                            await self._changed.wait()
-        except TimeoutError:
-            raise AssertionError(f"no {text!r} within {timeout} s:\n{self.output}") from None
-        chunk = self.output[self.seen : at + len(text)]
-        self.seen = at + len(text)
-        return chunk
+class PtyJog(PtyTool):
+    """``lupin jog`` on a pty: each line typed waits for the next ``jog>`` prompt."""
 
     async def type(self, line: str, until: str = "jog> ") -> str:
-        """Type a command and wait for the next prompt; return what it printed."""
-        assert self.master is not None
-        os.write(self.master, (line + "\n").encode())
-        return await self.expect(until)
-
-    async def wait(self, timeout: float = 15.0) -> int:
-        async with asyncio.timeout(timeout):
-            # Polled, not waited on in a thread: the suite fails tests that leave threads.
-            while self.proc.poll() is None:  # noqa: ASYNC110
-                await asyncio.sleep(0.02)
-        return self.proc.returncode
-
-    async def close(self) -> None:
-        if self.proc.poll() is None:
-            self.proc.kill()
-            await self.wait()
-        if self.master is not None:
-            with contextlib.suppress(ValueError, OSError):
-                asyncio.get_running_loop().remove_reader(self.master)
-            os.close(self.master)
-            self.master = None
+        return await super().type(line, until)
 
 
 @pytest.fixture()
@@ -314,7 +236,7 @@ async def jog(api: ApiServer, lupin_home: Path) -> AsyncIterator[Callable[..., P
     started: list[PtyJog] = []
 
     def start(*args: str) -> PtyJog:
-        tool = PtyJog(lupin_home, "--url", api.url, *args)
+        tool = PtyJog(("jog", "--url", api.url, *args), child_env(lupin_home))
         started.append(tool)
         return tool
 
@@ -327,7 +249,7 @@ async def jog(api: ApiServer, lupin_home: Path) -> AsyncIterator[Callable[..., P
 
 async def test_jog_in_a_terminal(jog: Callable[..., PtyJog], daemon: Daemon, sim: Sim) -> None:
     tool = jog()
-    banner = await tool.expect("jog> ")
+    banner = await tool.expect_next("jog> ")
     assert "step 0.05 rad" in banner
     assert re.search(r"elbow_flex\s+0\.0\s+0\.0\s+\[-90, 90\]\s+off", banner), banner
     assert "gripper (HMI)" in banner and "[-30, 30]" in banner

@@ -9,13 +9,7 @@ at a terminal: prompts, the live table, Enter and Ctrl-C all go through it.
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import dataclasses
-import os
-import re
-import signal
-import subprocess
-import sys
 from collections.abc import Awaitable, Callable, Mapping, Sequence
 from pathlib import Path
 
@@ -23,10 +17,10 @@ from lupin.config import load_profile
 from lupin.config_models import RobotProfile
 from lupin_adapters.sim import PtySimServer, SimulatedBus, build_sim_bus
 from lupin_adapters.sim.link import sim_specs
+from lupintest.pty_tool import PtyTool as Tool
 
 MakeSim = Callable[..., Awaitable["Sim"]]
-StartTool = Callable[..., "Tool"]
-ANSI = re.compile(r"\x1b\[[0-9;]*[A-Za-z]")
+StartTool = Callable[..., Tool]
 
 
 @dataclasses.dataclass
@@ -57,96 +51,6 @@ async def start_sim(
     server = PtySimServer(bus, baud=profile.bus.baud)
     path = await server.start()
     return Sim(bus, server, path, profile)
-
-
-class Tool:
-    """``python -m lupin ARGS`` on a pseudo-terminal the test holds the master end of."""
-
-    def __init__(self, args: Sequence[str], home: Path) -> None:
-        master, slave = os.openpty()
-        env = dict(os.environ, LUPIN_HOME=str(home), COLUMNS="200")
-        env.pop("JOURNAL_STREAM", None)
-        self.proc = subprocess.Popen(
-            [sys.executable, "-m", "lupin", *args],
-            stdin=slave,
-            stdout=slave,
-            stderr=slave,
-            env=env,
-            close_fds=True,
-            start_new_session=True,  # its own session: our Ctrl-C is the one we send
-        )
-        os.close(slave)  # the child holds it now; EIO on the master means it has gone
-        os.set_blocking(master, False)
-        self.master: int | None = master
-        self.raw = b""
-        self._changed = asyncio.Event()
-        asyncio.get_running_loop().add_reader(master, self._on_readable)
-
-    @property
-    def output(self) -> str:
-        return ANSI.sub("", self.raw.decode(errors="replace")).replace("\r", "")
-
-    def _on_readable(self) -> None:
-        assert self.master is not None
-        try:
-            data = os.read(self.master, 65536)
-        except BlockingIOError:
-            return
-        except OSError:  # EIO: every slave fd closed, the child has exited
-            data = b""
-        if not data:
-            asyncio.get_running_loop().remove_reader(self.master)
-        self.raw += data
-        self._changed.set()
-
-    async def expect(self, text: str, timeout: float = 20.0) -> str:
-        """Wait until ``text`` appears in the output; fail with the output so far."""
-        try:
-            async with asyncio.timeout(timeout):
-                while text not in self.output:
-                    if self.proc.poll() is not None:
-                        await asyncio.sleep(0.05)  # let the last bytes arrive
-                        if text in self.output:
-                            break
-                        raise AssertionError(
-                            f"exited {self.proc.returncode} before {text!r}:\n{self.output}"
-                        )
-                    self._changed.clear()
-                    with contextlib.suppress(TimeoutError):
-                        async with asyncio.timeout(0.1):
-                            await self._changed.wait()
-        except TimeoutError:
-            raise AssertionError(f"no {text!r} within {timeout} s:\n{self.output}") from None
-        return self.output
-
-    def send(self, text: str) -> None:
-        assert self.master is not None
-        os.write(self.master, text.encode())
-
-    def interrupt(self) -> None:
-        self.proc.send_signal(signal.SIGINT)
-
-    async def wait(self, timeout: float = 30.0) -> int:
-        """The exit status, once the child has exited and its output is drained."""
-        try:
-            async with asyncio.timeout(timeout):
-                # Polled, not waited on in a thread: the suite fails tests that leave threads.
-                while self.proc.poll() is None:  # noqa: ASYNC110
-                    await asyncio.sleep(0.02)
-        except TimeoutError:
-            raise AssertionError(f"still running after {timeout} s:\n{self.output}") from None
-        await asyncio.sleep(0.05)
-        return self.proc.returncode
-
-    async def close(self) -> None:
-        if self.proc.poll() is None:
-            self.proc.kill()
-            await self.wait(10)
-        if self.master is not None:
-            with contextlib.suppress(ValueError, OSError):
-                asyncio.get_running_loop().remove_reader(self.master)
-            os.close(self.master)
-            self.master = None
 
 
 def ramp(*points: float, step: float = 150.0) -> list[float]:

@@ -9,6 +9,8 @@ from typing import Any
 import pytest
 from benchkit import MakeSim, Sim, StartTool, Tool, start_sim
 
+from lupintest.harness import child_env
+
 
 @pytest.fixture()
 async def make_sim(lupin_home: Path) -> AsyncIterator[MakeSim]:
@@ -36,7 +38,7 @@ async def tools(make_sim: MakeSim, lupin_home: Path) -> AsyncIterator[StartTool]
     started: list[Tool] = []
 
     def start(*args: str) -> Tool:
-        tool = Tool(args, lupin_home)
+        tool = Tool(args, child_env(lupin_home))
         started.append(tool)
         return tool
 
