@@ -237,14 +237,36 @@ class Daemon:
                 log.error("%s (id %d) excluded from control: %s", name, geo.id, reason)
             self.arm.set_torque_state(name, Torque.ON if data[-1] else Torque.OFF)
         if self.base is not None:
+            spinning: dict[int, bytes] = {}
+            energised: dict[int, bytes] = {}
             for wheel in self.profile.base.wheels if self.profile.base else []:
                 data = result.data.get(wheel.id)
                 if data is None:
                     log.warning("wheel %s (id %d) did not answer at start-up", wheel.name, wheel.id)
-                elif data[0] != MODE_VELOCITY:
+                    continue
+                if data[0] != MODE_VELOCITY:
                     reason = f"operating mode reads {data[0]}, expected {MODE_VELOCITY} (velocity)"
                     self.loop.wheels_excluded[wheel.id] = reason
                     log.error("wheel %s excluded from control: %s", wheel.name, reason)
+                if data[-1]:
+                    log.warning(
+                        "stopping wheel %s (id %d): found energised at start-up (a previous "
+                        "run died without its safe stop); speed 0, torque off",
+                        wheel.name,
+                        wheel.id,
+                    )
+                    energised[wheel.id] = b"\x00"
+                    if data[0] == MODE_VELOCITY:
+                        spinning[wheel.id] = ct.encode_value(ct.REGISTERS["goal_speed"], 0)
+            # A wheel in velocity mode keeps turning at its last goal speed as long as its
+            # torque is on: after a SIGKILL that no stop helper cleaned up, the robot would
+            # drive on while this daemon reports the base idle (its goals start at 0, so it
+            # would never write one). Stop it as safe_stop does: zero speed, then limp.
+            # Wheels only: an energised arm is left holding (limping it would drop it).
+            if energised:
+                goal_speed = ct.REGISTERS["goal_speed"].address
+                await self.bus.sync_write(goal_speed, 2, spinning)
+                await self.bus.sync_write(ct.REGISTERS["torque_enable"].address, 1, energised)
         if any(self.arm.torque[n] is Torque.ON for n in self.arm.names):
             # Torque found on at boot (a previous run died without limping): say so;
             # the command gate stays closed until an operator enables or disables.
