@@ -21,21 +21,19 @@ from __future__ import annotations
 
 import argparse
 import asyncio
-import contextlib
 import json
 import os
 import platform
-import signal
-import sys
 import tempfile
 import time
 from collections import Counter
-from collections.abc import AsyncIterator, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import scservo_sdk as sdk
+from benchlib.processes import cpu_seconds, simulator
 
 from lupin import control_table as ct
 from lupin import protocol
@@ -48,7 +46,6 @@ STATE = ct.REGISTERS["present_position"]  # 56: position, speed, load
 STATE_LEN = 6
 GOAL = ct.REGISTERS["goal_position"]
 RESULTS = Path(__file__).resolve().parent / "results" / "bus.json"
-CLOCK_TICKS = os.sysconf("SC_CLK_TCK")
 
 
 @dataclass
@@ -115,59 +112,17 @@ METHOD = (
 )
 
 
-def process_cpu(pid: int) -> float:
-    """User + system CPU seconds of another process, from /proc."""
-    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / CLOCK_TICKS
-
-
-@contextlib.asynccontextmanager
-async def simulator(home: Path) -> AsyncIterator[tuple[str, int]]:
-    """``lupin sim --wire-pacing`` in its own process: (pty path, pid)."""
-    env = {**os.environ, "LUPIN_HOME": str(home)}
-    proc = await asyncio.create_subprocess_exec(
-        sys.executable,
-        "-m",
-        "lupin",
-        "sim",
-        "--profile",
-        "so101",
-        "--wire-pacing",
-        "--log-level",
-        "warning",
-        stdout=asyncio.subprocess.PIPE,
-        stderr=asyncio.subprocess.DEVNULL,
-        env=env,
-    )
-    try:
-        assert proc.stdout is not None
-        async with asyncio.timeout(30):
-            path = (await proc.stdout.readline()).decode().strip()
-        if not path.startswith("/dev/"):
-            raise RuntimeError(f"lupin sim did not print a pty path: {path!r}")
-        yield path, proc.pid
-    finally:
-        with contextlib.suppress(ProcessLookupError):
-            proc.send_signal(signal.SIGTERM)
-        try:
-            async with asyncio.timeout(10):
-                await proc.communicate()
-        except TimeoutError:
-            proc.kill()
-            await proc.communicate()
-
-
 async def bench_lupin(path: str, sim_pid: int, setup: Setup, n: int, warmup: int) -> Run:
     bus = await setup.bus(path)
     try:
         for _ in range(warmup):
             await bus.sync_read(setup.ids, STATE.address, STATE_LEN)
         bus.stats.failures.clear()
-        sim0, cpu0, wall0 = process_cpu(sim_pid), time.process_time(), time.perf_counter()
+        sim0, cpu0, wall0 = cpu_seconds(sim_pid), time.process_time(), time.perf_counter()
         for _ in range(n):
             await bus.sync_read(setup.ids, STATE.address, STATE_LEN)
         wall, cpu = time.perf_counter() - wall0, time.process_time() - cpu0
-        sim = process_cpu(sim_pid) - sim0
+        sim = cpu_seconds(sim_pid) - sim0
         return Run(n, wall, cpu, cpu, sim, Counter(bus.stats.failures))
     finally:
         await bus.close()
@@ -195,12 +150,12 @@ def sdk_session(path: str, setup: Setup, n: int, warmup: int) -> tuple[float, fl
 
 
 async def bench_sdk(path: str, sim_pid: int, setup: Setup, n: int, warmup: int) -> Run:
-    sim0, cpu0 = process_cpu(sim_pid), time.process_time()
+    sim0, cpu0 = cpu_seconds(sim_pid), time.process_time()
     wall, thread_cpu, failed = await asyncio.to_thread(sdk_session, path, setup, n, warmup)
     # process_time and the sim's CPU include the warm-up here: scale them to N.
     share = n / (n + warmup)
     cpu = (time.process_time() - cpu0) * share
-    sim = (process_cpu(sim_pid) - sim0) * share
+    sim = (cpu_seconds(sim_pid) - sim0) * share
     return Run(n, wall, thread_cpu, cpu, sim, +Counter({"failed_transactions": failed}))
 
 
@@ -259,7 +214,8 @@ async def run(n: int, ticks: int, warmup: int, rounds: int) -> dict[str, Any]:
         bus = profile.bus
         setup = Setup(bus.baud, bus.reply_margin_s, bus.retries, [s.id for s in specs], arm_ids, {})
         lupin, vendor = Run(), Run()
-        async with simulator(home) as (path, sim_pid):
+        async with simulator(home) as sim_process:
+            path, sim_pid = sim_process.path, sim_process.pid
             setup.goals = await read_goals(path, setup)
             for r in range(rounds):
                 share = n // rounds + (r < n % rounds)
