@@ -36,11 +36,12 @@ from lupin.heal import (
     heal,
 )
 from lupin.joints import arm_geometry
-from lupin.mux import LockSpec, SourceSpec, TakeoverMux, Twist, VelocityMux
+from lupin.mux import LockSpec, SourceSpec, Twist, VelocityMux
 from lupin.pad import open_pad
 from lupin.pad_mapping import load_mapping, resolve_layout
 from lupin.pad_task import PadStatus, run_pad
 from lupin.services import Services
+from lupin.takeover_mux import TakeoverMux
 from lupin.teleop import ArmTeleop, BaseTeleop
 
 log = logging.getLogger(__name__)
@@ -114,6 +115,7 @@ class Daemon:
         self.last_heal: HealReport | None = None
         self.pad_info: dict[str, object] | None = None
         self.pad_status: PadStatus | None = None
+        self._mux_active: str | None = None  # the source driving the base, as last logged
         self.services = Services(self)
 
     # -- lifecycle ------------------------------------------------------------
@@ -402,6 +404,16 @@ class Daemon:
 
     def _mux_output(self, now: float) -> tuple[Twist | None, float]:
         out = self.mux.output(now)
+        if out.source != self._mux_active:
+            # Who drives the base is a state transition an operator reconstructs from the
+            # journal ("why did it stop?"): log each change, once (called once per tick).
+            log.info(
+                "mux: %s drives the base (was %s)%s",
+                out.source or "nothing",
+                self._mux_active or "nothing",
+                f", locked by {out.locked_by}" if out.locked_by else "",
+            )
+            self._mux_active = out.source
         if out.twist is None or out.source is None:
             return None, -math.inf
         return out.twist, self.mux.last_seen(out.source)

@@ -1,7 +1,8 @@
-"""Velocity arbitration: twist_mux's priority-with-timeout mux and the 2-source takeover mux.
+"""Velocity arbitration: twist_mux's priority-with-timeout mux, and what every mux shares.
 
 Several producers (the pad's dead-man teleop, the web HMI, an autonomy stack, the
-sim idle-stop) submit twists; the mux forwards exactly one. Both muxes are pure:
+sim idle-stop) submit twists; the mux forwards exactly one. Muxes are pure (the
+2-source takeover mux is in :mod:`lupin.takeover_mux`):
 every call takes ``now`` (monotonic seconds) and nothing here sleeps or does I/O.
 
 Priority mux rules (``VelocityMux``), copied from twist_mux:
@@ -139,12 +140,12 @@ class Mux(Protocol):
     def last_seen(self, source: str) -> float: ...
 
 
-def _fresh(stamp: float | None, timeout: float, now: float) -> bool:
+def is_fresh(stamp: float | None, timeout: float, now: float) -> bool:
     # twist_mux's hasExpired() is `age > timeout`, so the exact boundary is still fresh.
     return stamp is not None and (timeout == 0 or now - stamp <= timeout)
 
 
-def _check_submit(twist: Twist, now: float) -> None:
+def check_submit(twist: Twist, now: float) -> None:
     if not twist.is_finite():
         raise ValueError(f"twist has a non-finite component: {twist}")
     if not math.isfinite(now):
@@ -181,7 +182,7 @@ class VelocityMux:
         spec = self._sources.get(source)
         if spec is None:
             raise KeyError(f"unknown mux source {source!r}; known: {sorted(self._sources)}")
-        _check_submit(twist, now)
+        check_submit(twist, now)
         lock = self._highest_lock(now)
         if lock is not None and spec.priority < lock.priority:
             # twist_mux zeroes a message that arrives while masked: the source stays
@@ -206,7 +207,7 @@ class VelocityMux:
 
     def _engaged(self, spec: LockSpec, now: float) -> bool:
         entry = self._lock_values.get(spec.name)
-        return entry is not None and entry[0] and _fresh(entry[1], spec.timeout, now)
+        return entry is not None and entry[0] and is_fresh(entry[1], spec.timeout, now)
 
     def _highest_lock(self, now: float) -> LockSpec | None:
         best: LockSpec | None = None
@@ -215,9 +216,9 @@ class VelocityMux:
                 best = spec
         return best
 
-    def _is_fresh(self, spec: SourceSpec, now: float) -> bool:
+    def _source_fresh(self, spec: SourceSpec, now: float) -> bool:
         entry = self._twists.get(spec.name)
-        return _fresh(entry[1] if entry else None, spec.timeout, now)
+        return is_fresh(entry[1] if entry else None, spec.timeout, now)
 
     def output(self, now: float) -> MuxOutput:
         lock = self._highest_lock(now)
@@ -226,7 +227,7 @@ class VelocityMux:
         best: tuple[int, float, int] | None = None
         winner: str | None = None
         for index, spec in enumerate(self._sources.values()):
-            if not self._is_fresh(spec, now):
+            if not self._source_fresh(spec, now):
                 continue
             if floor is not None and spec.priority < floor:
                 continue
@@ -243,7 +244,7 @@ class VelocityMux:
         sources: dict[str, SourceState] = {}
         for spec in self._sources.values():
             entry = self._twists.get(spec.name)
-            fresh = self._is_fresh(spec, now)
+            fresh = self._source_fresh(spec, now)
             masked = (
                 fresh
                 and out.locked_by is not None
@@ -264,83 +265,6 @@ class VelocityMux:
         return MuxStatus(out.source, out.locked_by, sources, locks)
 
 
-class TakeoverMux:
-    """The 2-source cmd_vel_mux: ``manual`` passes straight through, and ``auto`` is
-    dropped for ``manual_takeover_seconds`` after each manual twist, giving the operator
-    a takeover window without fighting the autonomy stack (runbook, "The 2-source
-    variant"). It has no locks: the daemon handles the E-stop itself in this mode.
-
-    The output is the most recently forwarded twist while its source is fresh (each
-    source's own timeout), else nothing; an older twist is never replayed.
-    """
-
-    MANUAL: ClassVar[str] = "manual"
-    AUTO: ClassVar[str] = "auto"
-
-    def __init__(
-        self, sources: Sequence[SourceSpec], *, manual_takeover_seconds: float = 0.5
-    ) -> None:
-        names = [s.name for s in sources]
-        want = [self.MANUAL, self.AUTO]
-        if sorted(names) != sorted(want):
-            raise ValueError(f"the takeover mux takes exactly the sources {want}, got {names}")
-        if not math.isfinite(manual_takeover_seconds) or manual_takeover_seconds < 0:
-            raise ValueError(f"manual_takeover_seconds must be >= 0, got {manual_takeover_seconds}")
-        self._sources = {s.name: s for s in sources}
-        self.manual_takeover_seconds = manual_takeover_seconds
-        self._last: dict[str, tuple[Twist, float]] = {}
-        self._forwarded: str | None = None
-        self.dropped = 0  # auto twists dropped inside a takeover window
-
-    @property
-    def sources(self) -> tuple[SourceSpec, ...]:
-        return tuple(self._sources.values())
-
-    def _in_takeover(self, now: float) -> bool:
-        manual = self._last.get(self.MANUAL)
-        window = self.manual_takeover_seconds
-        # `<=` matches freshness: with the defaults (window = manual timeout = 0.5 s)
-        # auto is let through exactly when manual's last twist expires.
-        return manual is not None and window > 0 and now - manual[1] <= window
-
-    def submit(self, source: str, twist: Twist, now: float) -> None:
-        if source not in self._sources:
-            raise KeyError(f"unknown mux source {source!r}; known: {sorted(self._sources)}")
-        _check_submit(twist, now)
-        if source == self.AUTO and self._in_takeover(now):
-            self.dropped += 1
-            return
-        self._last[source] = (twist, now)
-        self._forwarded = source
-
-    def last_seen(self, source: str) -> float:
-        """When ``source``'s last *accepted* twist arrived (monotonic s); -inf if never."""
-        if source not in self._sources:
-            raise KeyError(f"unknown mux source {source!r}; known: {sorted(self._sources)}")
-        entry = self._last.get(source)
-        return entry[1] if entry is not None else -math.inf
-
-    def output(self, now: float) -> MuxOutput:
-        name = self._forwarded
-        if name is None:
-            return MuxOutput(None, None)
-        twist, stamp = self._last[name]
-        if not _fresh(stamp, self._sources[name].timeout, now):
-            return MuxOutput(None, None)
-        return MuxOutput(name, twist)
-
-    def status(self, now: float) -> MuxStatus:
-        out = self.output(now)
-        sources: dict[str, SourceState] = {}
-        for spec in self._sources.values():
-            entry = self._last.get(spec.name)
-            fresh = _fresh(entry[1] if entry else None, spec.timeout, now)
-            masked = spec.name == self.AUTO and fresh and out.source == self.MANUAL
-            age = now - entry[1] if entry else None
-            sources[spec.name] = SourceState(spec.priority, spec.timeout, age, fresh, masked)
-        return MuxStatus(out.source, None, sources, {})
-
-
 __all__ = [
     "ZERO_TWIST",
     "LockSpec",
@@ -350,7 +274,8 @@ __all__ = [
     "MuxStatus",
     "SourceSpec",
     "SourceState",
-    "TakeoverMux",
     "Twist",
     "VelocityMux",
+    "check_submit",
+    "is_fresh",
 ]

@@ -13,10 +13,10 @@ from lupin.mux import (
     LockSpec,
     MuxOutput,
     SourceSpec,
-    TakeoverMux,
     Twist,
     VelocityMux,
 )
+from lupin.takeover_mux import TakeoverMux
 
 # SPEC §4: joy 100 / 0.3 s, manual 50 / 0.5 s, auto 10 / 0.5 s, idle 1 / 1.0 s.
 SOURCES = [
