@@ -130,6 +130,7 @@ class ControlLoop:
         for name in self.arm.names:
             self.arm.set_torque_state(name, Torque.OFF)
         self._written_pos.clear()
+        log.info("arm torque off; command gate closed")
 
     async def _enable_step(self) -> None:
         name = self._enable_queue[0]
@@ -343,6 +344,7 @@ class ControlLoop:
         await self.bus.sync_write(GOAL_SPEED.address, 2, {i: zero for i in ids})
         await self.bus.sync_write(TORQUE, 1, {i: b"\x01" for i in ids})
         self._wheel_torque = True
+        log.info("wheel torque on (speed zeroed first): %s", [self.names[i] for i in ids])
 
     async def _send(self, pos: dict[int, int], speed: dict[int, int]) -> None:
         if not pos and not speed:
