@@ -162,6 +162,10 @@ class _PadLoop:
         )
         edges = (s.connected, s.deadman_held, s.driving)
         if edges != self._edges:
+            if s.connected != self._edges[0]:
+                # A pad that vanishes stops the base: the journal must say so.
+                what = "connected" if s.connected else "gone (counts as released)"
+                log.info("pad %s: %s", s.reader or "reader", what)
             self._edges = edges
             if self.on_state is not None:
                 self.on_state(s.as_dict(self.clock()))

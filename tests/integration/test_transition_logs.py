@@ -1,13 +1,15 @@
 """Every state transition an operator needs to reconstruct from the journal is logged, once.
 
 E-stop, servo lost/back and base blocked were already logged; these cover the
-ones that were silent: who drives the base (mux source), arm torque off, and
-the wheels being energised.
+ones that were silent: who drives the base (mux source), arm torque off, the
+wheels being energised, and the pad coming and going.
 """
 
 from __future__ import annotations
 
+import asyncio
 import logging
+from collections.abc import AsyncIterator
 
 import pytest
 
@@ -15,6 +17,10 @@ from lupin import api_models as m
 from lupin.config import load_profile
 from lupin.daemon import Daemon, DaemonOptions
 from lupin.mux import Twist
+from lupin.pad import PadFrame
+from lupin.pad_mapping import load_mapping
+from lupin.pad_task import run_pad
+from lupin.teleop import BaseTeleop
 from lupintest.harness import Sim, wait_for
 
 
@@ -76,3 +82,39 @@ async def test_arm_torque_off_and_wheel_torque_on_are_logged(
     await wait_for(lambda: "wheel torque on" in caplog.text)
     await wait_for(lambda: sim.bus.servo(7).torque and sim.bus.servo(9).torque)
     assert "wheel torque on (speed zeroed first): ['wheel left', 'wheel right']" in caplog.text
+
+
+class Replayed:
+    """A reader: a frame, the pad vanishes, it is back, then its frames end."""
+
+    name, transport = "test-pad", "test"
+
+    async def frames(self) -> AsyncIterator[PadFrame | None]:
+        idle = PadFrame(0.0, (0.0,) * 4 + (1.0, 1.0, 0.0, 0.0), (0,) * 15)
+        for item in (idle, idle, None, idle):
+            await asyncio.sleep(0.01)
+            yield item
+
+    async def close(self) -> None:
+        return None
+
+
+async def test_the_pad_coming_and_going_is_logged_once_each(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    caplog.set_level(logging.INFO, logger="lupin.pad_task")
+    await run_pad(
+        Replayed,
+        BaseTeleop(load_mapping("xbox-bluetooth")),
+        None,
+        submit_twist=lambda source, twist: None,
+        arm=None,
+        clock=asyncio.get_running_loop().time,
+    )
+    assert [r.getMessage() for r in caplog.records] == [
+        "pad test-pad: connected",
+        "pad test-pad: gone (counts as released)",
+        "pad test-pad: connected",
+        "pad test-pad: no more frames",
+        "pad test-pad: gone (counts as released)",  # frames that end count as a vanish
+    ]
