@@ -16,6 +16,7 @@ from pydantic import BaseModel, ConfigDict, Field
 Finite = Annotated[float, Field(allow_inf_nan=False)]
 Speed = Annotated[float, Field(gt=0, le=720, allow_inf_nan=False)]
 PoseName = Annotated[str, Field(pattern=r"^[A-Za-z0-9_-]{1,40}$")]
+MIN_POSE_SPEED_RAD_S = 0.01
 
 
 class Request(BaseModel):
@@ -51,13 +52,19 @@ class TorqueRequest(Request):
 
 class PoseGoRequest(Request):
     max_travel_rad: Annotated[float, Field(gt=0, le=6.3, allow_inf_nan=False)] = 0.35
-    speed_rad_s: Annotated[float, Field(gt=0, le=3.0, allow_inf_nan=False)] = 0.5
+    # A floor, not just > 0: the move is streamed as travel / speed * 20 Hz setpoints, so
+    # 1e-12 rad/s asked for billions of them and froze the event loop, control tick
+    # included, with the arm energised (found by the reliability suite's fuzzing).
+    # 0.01 rad/s bounds a full-window move to ~13 000 setpoints (about 10 minutes).
+    speed_rad_s: Annotated[float, Field(ge=MIN_POSE_SPEED_RAD_S, le=3.0, allow_inf_nan=False)] = 0.5
 
 
 class PoseSaveRequest(Request):
     """PUT a pose: capture the current measured pose, or store the given joints (rad)."""
 
-    joints_rad: dict[str, Finite] | None = None
+    # At least one joint: an empty pose has nothing to go to, and a move naming no joint
+    # would pass the torque check vacuously (found by the reliability suite's fuzzing).
+    joints_rad: Annotated[dict[str, Finite], Field(min_length=1)] | None = None
 
 
 # -- responses -----------------------------------------------------------------------

@@ -390,6 +390,11 @@ class Services:
         pose = self._load_poses().get(name)
         if pose is None:
             raise ServiceError("unknown_pose", f"no taught pose {name!r}", 404)
+        if not pose:
+            # A hand-edited poses.yaml can still hold one (the API refuses to teach it):
+            # with no joint named the torque check below passes vacuously, and the empty
+            # trajectory was a 500. Refuse it by name instead.
+            raise ServiceError("empty_pose", f"taught pose {name!r} names no joint", 409)
         arm = self.d.arm
         try:
             arm.check_can_move(list(pose))
