@@ -37,6 +37,16 @@ commands with an `id` (`estop`, `joint`, `gripper`, `torque`, `init`, `preset`, 
 `heal`), answered by a `reply` frame. With a token, offer the subprotocols
 `["lupin.v1", "bearer.<token>"]` or send `{"type": "auth", "token": ...}` first.
 Frame schemas: components.schemas `*Frame`."""
+# OpenAPI links: a response that names a resource another operation takes by name.
+# A taught pose is the API's one created resource: teaching it (PUT) answers its name,
+# which reads, goes to and forgets it. Clients, and schemathesis' stateful run (the
+# reliability suite), follow these to chain calls: teach, read, go, forget, read again.
+POSE_LINKS = {
+    "GetPose": "get_pose",
+    "GoToPose": "go_pose",
+    "DeletePose": "delete_pose",
+}
+LINKS: dict[str, dict[str, str]] = {"save_pose": POSE_LINKS, "get_pose": POSE_LINKS}
 
 
 def _json(schema: dict[str, Any], description: str) -> dict[str, Any]:
@@ -90,6 +100,13 @@ def _operation(
         "tags": [route.tag],
         "responses": {"200": _json(refs[(route.response, "serialization")], route.summary)},
     }
+    links = LINKS.get(op["operationId"], {})
+    if links:
+        op["responses"]["200"]["links"] = {
+            name: {"operationId": target, "parameters": {"pose": "$response.body#/name"}}
+            for name, target in links.items()
+            if target != op["operationId"]
+        }
     params = _parameters(route, robot)
     if params:
         op["parameters"] = params
