@@ -11,7 +11,7 @@ no servo) is touched.
 from __future__ import annotations
 
 import os
-from collections.abc import Mapping
+from collections.abc import Hashable, Mapping
 from importlib import resources
 from pathlib import Path
 from typing import Any
@@ -38,17 +38,55 @@ def packaged_profiles() -> list[str]:
     return sorted(p.name[:-5] for p in root.iterdir() if p.name.endswith(".yaml"))
 
 
+class _StrictLoader(yaml.SafeLoader):
+    """``yaml.SafeLoader`` that refuses a key given twice in one mapping.
+
+    PyYAML keeps the last of two equal keys without a word, so a profile with
+    ``invert: false`` and, further down, ``invert: true`` loaded whichever came
+    last: a silent mistake of the kind unknown keys are refused for. A ``<<``
+    merge is not a duplicate: overriding merged keys is what it is for.
+    """
+
+    def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> dict[Hashable, Any]:
+        seen: set[Any] = set()
+        for key_node, _ in node.value:
+            if key_node.tag == "tag:yaml.org,2002:merge":
+                continue
+            key = self.construct_object(key_node, deep=True)
+            try:
+                duplicate = key in seen
+            except TypeError:
+                continue  # an unhashable key: the base class refuses it by name
+            if duplicate:
+                raise yaml.constructor.ConstructorError(
+                    "while constructing a mapping",
+                    node.start_mark,
+                    f"found duplicate key {key!r}",
+                    key_node.start_mark,
+                )
+            seen.add(key)
+        return super().construct_mapping(node, deep=deep)
+
+
 def read_yaml(path: Path | str, text: str | None = None) -> dict[str, Any]:
     """Parse a YAML mapping, turning every failure into a ConfigError naming the file."""
     try:
         if text is None:
             text = Path(path).read_text(encoding="utf-8")
-        data = yaml.safe_load(text)
+        data = yaml.load(text, Loader=_StrictLoader)  # a SafeLoader: no arbitrary objects
     except FileNotFoundError:
         raise ConfigError(f"{path}: no such file") from None
     except (OSError, UnicodeDecodeError) as exc:
         raise ConfigError(f"{path}: cannot read: {exc}") from None
     except yaml.YAMLError as exc:
+        raise ConfigError(f"{path}: not valid YAML: {exc}") from None
+    except RecursionError:
+        # PyYAML's composer recurses once per nesting level: a few thousand "[" was a
+        # traceback instead of a refusal (found by the reliability suite).
+        raise ConfigError(f"{path}: not valid YAML: nested too deeply") from None
+    except ValueError as exc:
+        # Raised while building a value, e.g. an integer of more than 4300 digits
+        # (Python's int conversion limit): also a traceback until the reliability suite.
         raise ConfigError(f"{path}: not valid YAML: {exc}") from None
     if data is None:
         return {}
@@ -57,10 +95,18 @@ def read_yaml(path: Path | str, text: str | None = None) -> dict[str, Any]:
     return data
 
 
-def _profile_source(name: str) -> tuple[str, str]:
+def _profile_source(name: str) -> tuple[str, str | None]:
+    """(source, text), text None when the file does not exist."""
     if "/" in name or name.endswith((".yaml", ".yml")):
         path = Path(name)
-        return str(path), path.read_text(encoding="utf-8") if path.exists() else ""
+        # A directory, an unreadable or a binary file was a traceback, and an empty
+        # file was reported as missing (found by the reliability suite).
+        try:
+            return str(path), path.read_text(encoding="utf-8")
+        except FileNotFoundError:
+            return str(path), None
+        except (OSError, UnicodeDecodeError) as exc:
+            raise ConfigError(f"{path}: cannot read: {exc}") from None
     res = resources.files("lupin_config") / "robots" / f"{name}.yaml"
     if not res.is_file():
         known = ", ".join(packaged_profiles())
@@ -104,7 +150,13 @@ def _format_loc(loc: tuple[Any, ...], data: Mapping[str, Any]) -> str:
 
 
 def apply_overlay(data: dict[str, Any], overlay: ArmOverlay, source: str) -> dict[str, Any]:
-    joints = data.get("arm", {}).get("joints", [])
+    arm = data.get("arm", {})
+    joints = arm.get("joints", []) if isinstance(arm, Mapping) else None
+    if not isinstance(joints, list):
+        # The merged profile is malformed here (a site config set ``arm`` or ``arm.joints``
+        # to a scalar): that was a traceback, or blamed the overlay. Leave it to validation,
+        # which names the field (found by the reliability suite).
+        return data
     names = [j.get("name") for j in joints if isinstance(j, Mapping)]
     for name in overlay.joints:
         if name not in names:
@@ -145,7 +197,7 @@ def load_profile(
             raise ConfigError(f"{config_file}: profile: expected a profile name")
         profile = profile or site_profile
     source, text = _profile_source(profile or DEFAULT_PROFILE)
-    if not text:
+    if text is None:
         raise ConfigError(f"{source}: no such file")
     data = read_yaml(source, text)
     sources = [source]

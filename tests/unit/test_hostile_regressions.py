@@ -6,11 +6,14 @@ The end-to-end versions live in tests/reliability/test_hostile_*.py.
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 from pydantic import ValidationError
 
 from lupin import api_models as m
 from lupin.api.openapi import build_document
+from lupin.config import ConfigError, load_profile, read_yaml
 
 
 def test_pose_go_speed_has_a_floor_so_the_stream_stays_bounded() -> None:
@@ -39,3 +42,75 @@ def test_the_document_links_a_taught_pose_to_what_takes_its_name() -> None:
     assert all(link["parameters"] == {"pose": "$response.body#/name"} for link in links.values())
     ops = {op["operationId"] for path in doc["paths"].values() for op in path.values()}
     assert {link["operationId"] for link in links.values()} <= ops
+
+
+# -- configuration files ----------------------------------------------------------------------
+
+
+@pytest.fixture()
+def home(tmp_path: Path) -> Path:
+    h = tmp_path / "home"
+    h.mkdir()
+    return h
+
+
+def refused(path: Path | str, *, home: Path, config: Path | None = None) -> str:
+    with pytest.raises(ConfigError) as info:
+        if config is None:
+            load_profile(str(path), home=home)
+        else:
+            load_profile(config_file=config, home=home)
+    return str(info.value)
+
+
+def test_deep_nesting_is_a_config_error_not_a_recursion_error(tmp_path: Path) -> None:
+    path = tmp_path / "deep.yaml"
+    path.write_text("a: " + "[" * 5000 + "]" * 5000 + "\n")
+    with pytest.raises(ConfigError, match=r"deep\.yaml: not valid YAML: nested too deeply"):
+        read_yaml(path)
+
+
+def test_a_number_past_the_int_digit_limit_is_a_config_error(tmp_path: Path) -> None:
+    path = tmp_path / "big.yaml"
+    path.write_text("control: {tick_hz: 1" + "0" * 5000 + "}\n")
+    with pytest.raises(ConfigError, match=r"big\.yaml: not valid YAML: .*4300 digits"):
+        read_yaml(path)
+
+
+def test_a_key_given_twice_is_refused_with_its_name_and_line(tmp_path: Path) -> None:
+    path = tmp_path / "twice.yaml"
+    path.write_text("arm:\n  envelope_deg: 90\n  envelope_deg: 120\n")
+    with pytest.raises(ConfigError, match=r"(?s)twice\.yaml.*duplicate key 'envelope_deg'.*line 3"):
+        read_yaml(path)
+
+
+def test_merge_keys_may_still_be_overridden(tmp_path: Path) -> None:
+    path = tmp_path / "merge.yaml"
+    path.write_text("base: &b {p: 1, d: 2}\ngains:\n  <<: *b\n  p: 5\n")
+    assert read_yaml(path)["gains"] == {"p": 5, "d": 2}
+
+
+def test_profile_path_that_cannot_be_read_is_a_config_error(tmp_path: Path, home: Path) -> None:
+    folder = tmp_path / "robot.yaml"
+    folder.mkdir()
+    assert "robot.yaml: cannot read" in refused(folder, home=home)
+    binary = tmp_path / "binary.yaml"
+    binary.write_bytes(b"\x00\xff\xfe garbage")
+    assert "binary.yaml: cannot read" in refused(binary, home=home)
+    empty = tmp_path / "empty.yaml"
+    empty.write_text("")
+    message = refused(empty, home=home)  # was "no such file"
+    assert "empty.yaml" in message and "no such file" not in message and "name" in message
+    assert "no such file" in refused(tmp_path / "missing.yaml", home=home)
+
+
+@pytest.mark.parametrize("site", ["arm: 5\n", "arm: {joints: 5}\n", "arm: {joints: abc}\n"])
+def test_a_malformed_arm_with_an_overlay_is_named_not_a_crash(
+    tmp_path: Path, home: Path, site: str
+) -> None:
+    (home / "arm.yaml").write_text("joints: {elbow_flex: {zero: 2048, min: 1024, max: 3072}}\n")
+    config = tmp_path / "site.yaml"
+    config.write_text(site)
+    message = refused("so101", home=home, config=config)
+    assert "site.yaml" in message and "arm" in message
+    assert "not a joint of this profile" not in message  # the overlay is not to blame
