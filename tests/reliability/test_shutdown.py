@@ -291,6 +291,7 @@ async def test_sigterm_mid_motion_under_load_zeroes_limps_and_exits_0_within_1s(
                 await stalled.close()
     finally:
         await proc.close()
+    print(f"SIGTERM to exit: {elapsed:.3f} s")
     assert (code, elapsed < 1.0) == (0, True), (code, elapsed, proc.log)
     assert "Traceback" not in proc.log
 
