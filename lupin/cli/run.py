@@ -68,7 +68,13 @@ async def serve(daemon: Daemon, args: argparse.Namespace) -> int:
         await daemon.stop()
         return EXIT_API
     log.info("API listening on %s%s", url, " (token required)" if api.token else "")
-    where = "simulated bus" if daemon.options.sim else daemon.profile.bus.port
+    # The port really opened: --bus-port overrides the profile's, and the journal's
+    # "ready" line is what an operator checks to see which bus the daemon owns.
+    where = (
+        "simulated bus"
+        if daemon.options.sim
+        else daemon.options.bus_port or daemon.profile.bus.port
+    )
     notifier = SdNotifier.from_env()  # None unless run by systemd as Type=notify
     announcer: asyncio.Task[None] | None = None
     if notifier is not None:

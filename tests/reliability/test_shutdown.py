@@ -294,6 +294,7 @@ async def test_sigterm_mid_motion_under_load_zeroes_limps_and_exits_0_within_1s(
     print(f"SIGTERM to exit: {elapsed:.3f} s")
     assert (code, elapsed < 1.0) == (0, True), (code, elapsed, proc.log)
     assert "Traceback" not in proc.log
+    assert f"ready: so101 on {sim.path}, arm limp" in proc.log  # the bus it really owns
 
     # Judged at the servos: each wheel got a zero speed, then every servo a torque off...
     after = sim.bus.writes(since=t_sig)
