@@ -38,6 +38,15 @@ TORQUE = REG["torque_enable"].address
 # Consecutive missed reads after which a servo counts as lost (0.1 s at 100 Hz): logged,
 # and a lost wheel stops the base. A 20 % noisy line misses 10 in a row about once in 10^7.
 LOST_TICKS = 10
+# The fastest an arm joint's reading can honestly move: one turn a second, above the
+# STS3215's no-load speed (~0.75 rev/s). A status packet's checksum is one byte, so a
+# reply cut short on a noisy line and completed by the next servo's bytes passes it
+# about once in 256: a well-formed reading of garbage. Adopted as measurement, resync
+# sent it back as a goal and the joint lurched toward its limit (found by the
+# reliability suite). A reading that jumps further than this from the last one is held
+# until the next reading confirms it; until then the joint counts as not answering.
+MAX_COUNTS_PER_S = 4096.0
+JUMP_SLACK_COUNTS = 8  # reading noise and tick jitter on top of the speed bound
 BUS_REPORT_S = 5.0  # bus failures are summarised in the log at most this often
 
 
@@ -52,6 +61,7 @@ class ServoReading:
     status: int = 0
     error: int = 0  # status packet error byte
     misses: int = 0  # consecutive ticks without an answer
+    suspect: tuple[int, float] | None = None  # an implausible jump awaiting confirmation
 
 
 @dataclass
@@ -223,13 +233,17 @@ class ControlLoop:
                         "%s (id %d) not answering: %d reads missed", *self._who(sid), LOST_TICKS
                     )
                 continue
+            position = ct.decode_value(REG["present_position"], data[0:2])
+            if sid in self.by_id and not self._plausible(r, position, now):
+                r.misses += 1
+                continue
             if r.misses >= LOST_TICKS:
                 log.info(
                     "%s (id %d) answering again after %d missed reads", *self._who(sid), r.misses
                 )
                 if sid not in self.by_id:
                     self._resend.add(sid)  # it may have missed a goal (a stop) while away
-            r.position = ct.decode_value(REG["present_position"], data[0:2])
+            r.position = position
             r.speed = ct.decode_value(REG["present_speed"], data[2:4])
             r.load = ct.decode_value(REG["present_load"], data[4:6])
             error = result.errors.get(sid, 0)
@@ -254,6 +268,25 @@ class ControlLoop:
         self._report_bus(now)
         for callback in self.on_tick:
             callback(now)
+
+    def _plausible(self, r: ServoReading, position: int, now: float) -> bool:
+        """False for an arm reading that jumped further than the joint can move (see
+        MAX_COUNTS_PER_S), until a second reading confirms the new place."""
+        if r.t == 0.0:
+            return True  # the first reading: nothing to compare with
+
+        def reach(since: float) -> float:
+            return MAX_COUNTS_PER_S * max(0.0, now - since) + JUMP_SLACK_COUNTS
+
+        if abs(position - r.position) <= reach(r.t):
+            r.suspect = None
+            return True
+        if r.suspect is not None and abs(position - r.suspect[0]) <= reach(r.suspect[1]):
+            r.suspect = None  # two readings agree: the joint really is there
+            return True
+        r.suspect = (position, now)
+        self.bus.stats.fail("implausible")
+        return False
 
     # -- reporting ---------------------------------------------------------------------
 

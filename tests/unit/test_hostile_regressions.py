@@ -6,14 +6,21 @@ The end-to-end versions live in tests/reliability/test_hostile_*.py.
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
 from pathlib import Path
+from typing import Any
 
 import pytest
 from pydantic import ValidationError
 
 from lupin import api_models as m
+from lupin import control_table as ct
 from lupin.api.openapi import build_document
+from lupin.arm import ArmCommander
+from lupin.bus import BusStats, SyncReadResult
 from lupin.config import ConfigError, load_profile, read_yaml
+from lupin.control_loop import ControlLoop
+from lupin.joints import arm_geometry
 
 
 def test_pose_go_speed_has_a_floor_so_the_stream_stays_bounded() -> None:
@@ -114,3 +121,95 @@ def test_a_malformed_arm_with_an_overlay_is_named_not_a_crash(
     message = refused("so101", home=home, config=config)
     assert "site.yaml" in message and "arm" in message
     assert "not a joint of this profile" not in message  # the overlay is not to blame
+
+
+# -- a garbled but well-formed reading --------------------------------------------------------
+
+
+class ScriptedBus:
+    """The ServoBus calls the control tick makes, answered from ``positions``."""
+
+    def __init__(self, positions: dict[int, int]) -> None:
+        self.positions = positions
+        self.stats = BusStats()
+        self.goals: list[tuple[int, int]] = []  # (servo id, goal position) as written
+
+    async def sync_read(self, ids: Sequence[int], address: int, length: int, **_: Any) -> Any:
+        result = SyncReadResult()
+        for sid in ids:
+            pos = ct.encode_value(ct.REGISTERS["present_position"], self.positions[sid])
+            result.data[sid] = pos + bytes(length - 2)
+        return result
+
+    async def sync_write(
+        self, address: int, length: int, data: Mapping[int, bytes], **_: Any
+    ) -> None:
+        if address == ct.REGISTERS["goal_position"].address:
+            for sid, raw in data.items():
+                self.goals.append((sid, ct.decode_value(ct.REGISTERS["goal_position"], raw[:2])))
+
+    async def write(self, sid: int, address: int, data: bytes, **_: Any) -> bool:
+        if address == ct.REGISTERS["goal_position"].address:
+            self.goals.append((sid, ct.decode_value(ct.REGISTERS["goal_position"], data)))
+        return True
+
+    async def read(self, *_: Any, **__: Any) -> None:
+        return None
+
+
+async def holding_loop(home: Path) -> tuple[ControlLoop, ScriptedBus, list[float]]:
+    """A control loop on a scripted bus, the arm energised and holding at 2048."""
+    geometry = arm_geometry(load_profile(home=home).arm)
+    bus = ScriptedBus({g.id: 2048 for g in geometry.values()})
+    now = [0.0]
+    arm = ArmCommander(geometry, resync_threshold=0.08)
+    loop = ControlLoop(
+        bus,  # type: ignore[arg-type]
+        arm,
+        geometry,
+        None,
+        lambda t: (None, 0.0),
+        clock=lambda: now[0],
+    )
+    for _ in range(2):
+        now[0] += 0.01
+        await loop.tick()
+    loop.request_enable()
+    while not arm.gate_open:
+        now[0] += 0.01
+        await loop.tick()
+    bus.goals.clear()
+    return loop, bus, now
+
+
+async def test_one_garbled_reading_is_held_not_adopted_and_sent_as_a_goal(home: Path) -> None:
+    # A cut reply completed by the next servo's bytes passes the one-byte checksum 1 in 256
+    # times: the elbow "read" 3900 for one tick. Resync adopted it and wrote it as a goal.
+    loop, bus, now = await holding_loop(home)
+    for position in (3900, 2048, 2048, 100, 2048):
+        bus.positions[3] = position
+        now[0] += 0.01
+        await loop.tick()
+    assert bus.goals == []  # the arm held still
+    assert loop.arm.resyncs == 0
+    assert loop.readings[3].position == 2048 and loop.readings[3].misses == 0
+    assert bus.stats.failures["implausible"] == 2
+
+
+async def test_a_real_jump_is_accepted_once_a_second_reading_confirms_it(home: Path) -> None:
+    loop, bus, now = await holding_loop(home)
+    bus.positions[3] = 2600  # moved by something else (the resync case), and stays there
+    now[0] += 0.01
+    await loop.tick()
+    assert loop.readings[3].position == 2048 and loop.readings[3].misses == 1
+    now[0] += 0.01
+    await loop.tick()
+    assert loop.readings[3].position == 2600 and loop.readings[3].misses == 0
+    assert loop.arm.resyncs == 1  # re-adopted, one tick later than without the check
+    # Motion within what a servo can do in a tick is never held.
+    for step in range(1, 6):
+        bus.positions[3] = 2600 + 40 * step
+        now[0] += 0.01
+        await loop.tick()
+        assert loop.readings[3].position == 2600 + 40 * step
+    assert bus.stats.failures["implausible"] == 1
