@@ -16,6 +16,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+import math
 from collections import deque
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
@@ -24,9 +25,11 @@ from typing import Any
 from lupin.arm import ArmCommander
 from lupin.mux import Twist
 from lupin.pad import PadFrame, PadReader, coalesce
-from lupin.teleop import ArmTeleop, BaseTeleop, Publish
+from lupin.teleop import AXIS_EPS, ArmTeleop, BaseTeleop, Publish
 
 log = logging.getLogger(__name__)
+
+BAD_AXES_LOG_S = 5.0  # a pad that keeps sending bad axes is reported at most this often
 
 
 @dataclass
@@ -72,6 +75,8 @@ class _PadLoop:
         self.on_state = on_state
         self._next_arm: float | None = None
         self.frames_seen = 0
+        self.bad_frames = 0  # frames with a NaN, infinite or out-of-range axis
+        self._bad_logged = -math.inf
         self._edges: tuple[bool, bool, bool] = (False, False, False)
         status.source = base.source
 
@@ -116,6 +121,8 @@ class _PadLoop:
     # -- events -----------------------------------------------------------------------
 
     def handle(self, item: PadFrame | None, now: float) -> None:
+        if item is not None:
+            self._check_axes(item, now)
         self._publish(self.base.update(item, now))
         if self.arm_teleop is not None:
             self.arm_teleop.on_frame(item)
@@ -124,6 +131,29 @@ class _PadLoop:
             self.frames_seen += 1
             self.status.last_frame_at = now
         self._report()
+
+    def _check_axes(self, frame: PadFrame, now: float) -> None:
+        """Warn (at most every BAD_AXES_LOG_S) about axes that are NaN, infinite or past
+        ±1. The teleop reads them as neutral, so nothing moves; but a pad that reports
+        them is broken, and until the reliability suite it did so without a word."""
+        bad = [
+            (i, v)
+            for i, v in enumerate(frame.axes)
+            if not math.isfinite(v) or abs(v) > 1 + AXIS_EPS
+        ]
+        if not bad:
+            return
+        self.bad_frames += 1
+        if now - self._bad_logged < BAD_AXES_LOG_S:
+            return
+        self._bad_logged = now
+        shown = ", ".join(f"{i}={v!r}" for i, v in bad[:8]) + (", ..." if len(bad) > 8 else "")
+        log.warning(
+            "pad %s: axes %s are NaN, infinite or beyond ±1; read as neutral (%d such frames)",
+            self.status.reader or "reader",
+            shown,
+            self.bad_frames,
+        )
 
     def timers(self, now: float) -> None:
         due = self.base.next_due()

@@ -6,6 +6,8 @@ The end-to-end versions live in tests/reliability/test_hostile_*.py.
 
 from __future__ import annotations
 
+import logging
+import math
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -21,6 +23,10 @@ from lupin.bus import BusStats, SyncReadResult
 from lupin.config import ConfigError, load_profile, read_yaml
 from lupin.control_loop import ControlLoop
 from lupin.joints import arm_geometry
+from lupin.pad import PadFrame
+from lupin.pad_mapping import load_mapping
+from lupin.pad_task import PadStatus, _PadLoop
+from lupin.teleop import BaseTeleop
 
 
 def test_pose_go_speed_has_a_floor_so_the_stream_stays_bounded() -> None:
@@ -213,3 +219,34 @@ async def test_a_real_jump_is_accepted_once_a_second_reading_confirms_it(home: P
         await loop.tick()
         assert loop.readings[3].position == 2600 + 40 * step
     assert bus.stats.failures["implausible"] == 1
+
+
+# -- pad axes that are not numbers ------------------------------------------------------------
+
+
+def test_bad_pad_axes_are_warned_about_by_index_and_value_at_most_every_period(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    # NaN, infinite or far out-of-range axes read as neutral (nothing moves), but a pad
+    # that sent them did so without a word in the log.
+    caplog.set_level(logging.WARNING, logger="lupin.pad_task")
+    twists: list[object] = []
+    loop = _PadLoop(
+        BaseTeleop(load_mapping("xbox-bluetooth")),
+        None,
+        lambda source, twist: twists.append(twist),
+        None,
+        lambda: 0.0,
+        PadStatus(reader="replay:bad.jsonl"),
+        None,
+    )
+    loop.handle(PadFrame(0.0, (math.nan, 0.0, 5.0), ()), 0.0)
+    loop.handle(PadFrame(0.1, (math.inf,), ()), 0.1)  # within the period: counted only
+    loop.handle(PadFrame(0.2, (1.0, -1.0, 1.0005), ()), 0.2)  # in range (float noise)
+    loop.handle(PadFrame(6.0, (0.0, -1e9), ()), 6.0)
+    warnings = [r.getMessage() for r in caplog.records]
+    assert len(warnings) == 2, warnings
+    assert "replay:bad.jsonl" in warnings[0] and "0=nan, 2=5.0" in warnings[0]
+    assert "neutral" in warnings[0] and "(1 such frames)" in warnings[0]
+    assert "1=-1000000000.0" in warnings[1] and "(3 such frames)" in warnings[1]
+    assert loop.bad_frames == 3 and twists == []
