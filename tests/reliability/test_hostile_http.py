@@ -40,9 +40,9 @@ from .hostile_helpers import assert_nothing_written, assert_still_ticking, fuzz_
 
 schemathesis = pytest.importorskip("schemathesis")
 
-NEGATIVE_EXAMPLES = 12  # per operation; ~22 operations
-STATEFUL_EXAMPLES = 25  # scenarios, each up to STATEFUL_STEPS calls
-STATEFUL_STEPS = 8
+NEGATIVE_EXAMPLES = 25  # per operation; ~22 operations
+STATEFUL_EXAMPLES = 50  # scenarios, each up to STATEFUL_STEPS calls
+STATEFUL_STEPS = 10
 
 
 @dataclass(frozen=True)
