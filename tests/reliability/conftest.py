@@ -31,4 +31,3 @@ def soak_seconds(request: pytest.FixtureRequest) -> float:
 async def http() -> AsyncIterator[aiohttp.ClientSession]:
     async with aiohttp.ClientSession() as session:
         yield session
-
