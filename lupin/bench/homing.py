@@ -90,6 +90,24 @@ class JointCalibration:
         return (old_counts - self.delta) % COUNTS_PER_REV
 
 
+def pull_in(name: str, lo: float, hi: float, margin_rad: float) -> tuple[int, int]:
+    """The soft-limit band: the stops ``lo..hi`` (counts) pulled in by the margin at both ends.
+
+    A hard stop is where the operator stopped pushing, so a soft limit has to sit
+    short of it (bring-up seed). Raises :class:`CalibrationRefused` when the range
+    is too short to survive the margin at both ends.
+    """
+    margin = margin_rad / RAD_PER_COUNT
+    lo_c, hi_c = math.ceil(lo + margin), math.floor(hi - margin)
+    if hi_c - lo_c < 2:
+        raise CalibrationRefused(
+            name,
+            f"swept only {(hi - lo) * RAD_PER_COUNT:.3f} rad, too short for the {margin_rad:g} "
+            f"rad margin at both ends: sweep it from stop to stop (or leave it out with --joints)",
+        )
+    return max(lo_c, 0), min(hi_c, COUNTS_PER_REV - 1)
+
+
 def plan_joint(
     joint: JointConfig,
     trace: JointTrace,
@@ -111,7 +129,6 @@ def plan_joint(
             f"swept {span_rad:.2f} rad, more than one revolution: a continuously rotating "
             f"joint has no stops to calibrate; leave it out with --joints",
         )
-    margin = margin_rad / RAD_PER_COUNT
     if homing:
         middle = round((trace.lo + trace.hi) / 2)
         new_offset = fold_offset(middle + old_offset - CENTRE)
@@ -128,14 +145,7 @@ def plan_joint(
                 f"without homing no zero/limit pair can describe it: run without --skip-homing",
             )
         new_offset, lo, hi, zero = old_offset, trace.lo, trace.hi, joint.zero
-    lo_c, hi_c = math.ceil(lo + margin), math.floor(hi - margin)
-    if hi_c - lo_c < 2:
-        raise CalibrationRefused(
-            name,
-            f"swept only {span_rad:.3f} rad, too short for the {margin_rad:g} rad margin at "
-            f"both ends: sweep it from stop to stop (or leave it out with --joints)",
-        )
-    lo_c, hi_c = max(lo_c, 0), min(hi_c, COUNTS_PER_REV - 1)
+    lo_c, hi_c = pull_in(name, lo, hi, margin_rad)
     if not lo_c <= zero <= hi_c:
         # Reachable only under --skip-homing: a centred zero is the middle of its band.
         hint = "run without --skip-homing to centre it" if not homing else "sweep it again"

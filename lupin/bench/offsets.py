@@ -26,6 +26,9 @@ from lupin.config import ConfigError, read_yaml
 from lupin.config_models import JointConfig
 
 BACKUP_NAME = "arm_offsets_backup.yaml"
+# What a restore overwrote, kept apart from the backup it restored from, so a
+# restore from the wrong snapshot can be undone.
+BEFORE_RESTORE_NAME = "arm_offsets_before_restore.yaml"
 RESTORE_COMMAND = "lupin offsets restore"
 # A limp joint's encoder may tick a count between the two reads; a wrong write
 # moves the reading by the whole delta, so two counts separates them cleanly.
@@ -111,6 +114,10 @@ def write_backup(
     if path.exists():
         stamp = datetime.fromtimestamp(path.stat().st_mtime).strftime("%Y%m%d-%H%M%S")
         archived = path.with_name(f"{path.stem}.{stamp}{path.suffix}")
+        n = 1
+        while archived.exists():  # two backups in one second must not overwrite each other
+            n += 1
+            archived = path.with_name(f"{path.stem}.{stamp}-{n}{path.suffix}")
         path.replace(archived)
     ids = {j.name: j.id for j in joints}
     body = {

@@ -11,9 +11,10 @@ import argparse
 import asyncio
 import os
 import sys
-from collections.abc import Awaitable, Callable
+from collections.abc import Awaitable, Callable, Sequence
 from typing import TextIO
 
+from lupin.bench.homing import JointCalibration
 from lupin.bench.registers import ServoIO
 from lupin.bench.session import BusOpenFailed
 from lupin.bus import BusClosed
@@ -120,6 +121,22 @@ async def release_torque(io: ServoIO, joints: list[JointConfig], term: Terminal)
             return False
     term.say(f"Torque released on {names}.")
     return True
+
+
+async def warn_servo_limits(
+    io: ServoIO, calibrations: Sequence[JointCalibration], term: Terminal
+) -> None:
+    """Say so when the servo's own limit registers would stop it short of the new band."""
+    for c in calibrations:
+        regs = await io.read_many(c.id, ("min_position_limit", "max_position_limit"))
+        if regs is None:
+            continue
+        lo, hi = regs["min_position_limit"], regs["max_position_limit"]
+        if (lo or hi) and (c.min < lo or c.max > hi):
+            term.say(
+                f"Note: {c.name}'s servo limit registers {lo}..{hi} are narrower than its new "
+                f"band {c.min}..{c.max}; the servo will stop there (lupin leaves them alone)."
+            )
 
 
 def load(args: argparse.Namespace) -> RobotProfile:

@@ -33,6 +33,7 @@ from lupin.cli.bench_io import (
     restore_command,
     run_tool,
     select_joints,
+    warn_servo_limits,
 )
 from lupin.config import ConfigError, lupin_home
 from lupin.config_models import JointConfig, RobotProfile
@@ -220,19 +221,5 @@ async def phase_two(
             f"Pose {o.pose!r} is now outside {o.joint}'s limits: {o.rad:+.3f} rad not in "
             f"[{o.lo:+.3f}, {o.hi:+.3f}]; re-teach it."
         )
-    await warn_servo_limits(io, prepared, term)
+    await warn_servo_limits(io, prepared.calibrations, term)
     return EXIT_OK
-
-
-async def warn_servo_limits(io: ServoIO, prepared: PreparedCalibration, term: Terminal) -> None:
-    """Say so when the servo's own limit registers would stop it short of the new band."""
-    for c in prepared.calibrations:
-        regs = await io.read_many(c.id, ("min_position_limit", "max_position_limit"))
-        if regs is None:
-            continue
-        lo, hi = regs["min_position_limit"], regs["max_position_limit"]
-        if (lo or hi) and (c.min < lo or c.max > hi):
-            term.say(
-                f"Note: {c.name}'s servo limit registers {lo}..{hi} are narrower than its new "
-                f"band {c.min}..{c.max}; the servo will stop there (lupin leaves them alone)."
-            )

@@ -12,13 +12,21 @@ import argparse
 import json
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 from lupin.bench.calibration import commit, prepare
 from lupin.bench.files import write_text_atomic
 from lupin.bench.homing import OFFSET_LIMIT, fold_offset
-from lupin.bench.lerobot import export_calibration, parse_calibration, plan_import
+from lupin.bench.lerobot import (
+    export_calibration,
+    full_turn,
+    parse_calibration,
+    plan_import,
+    recorded_sweeps,
+)
 from lupin.bench.offsets import (
     BACKUP_NAME,
+    BEFORE_RESTORE_NAME,
     OffsetChange,
     OffsetReadFailed,
     OffsetWriteFailed,
@@ -41,6 +49,7 @@ from lupin.cli.bench_io import (
     release_torque,
     restore_command,
     run_tool,
+    warn_servo_limits,
 )
 from lupin.config import ConfigError, lupin_home, read_yaml
 from lupin.config_models import JointConfig, RobotProfile
@@ -61,15 +70,20 @@ def main(args: argparse.Namespace) -> int:
     return run_tool(f"offsets {args.action}", lambda: action(args, profile, term))
 
 
-def recorded_offsets(home: Path) -> dict[str, int]:
-    """The homing offsets arm.yaml says were written, by joint (empty without one)."""
+def overlay_joints(home: Path) -> dict[str, Any]:
+    """The ``joints`` mapping of ``arm.yaml`` as written (empty without one)."""
     path = home / OVERLAY_NAME
     if not path.exists():
         return {}
     joints = read_yaml(path).get("joints") or {}
+    return joints if isinstance(joints, dict) else {}
+
+
+def recorded_offsets(home: Path) -> dict[str, int]:
+    """The homing offsets arm.yaml says were written, by joint (empty without one)."""
     out = {}
-    for name, entry in joints.items():
-        value = (entry.get("measurement") or {}).get("homing_offset")
+    for name, entry in overlay_joints(home).items():
+        value = ((entry or {}).get("measurement") or {}).get("homing_offset")
         if isinstance(value, int):
             out[name] = value
     return out
@@ -180,7 +194,20 @@ async def restore(args: argparse.Namespace, profile: RobotProfile, term: Termina
             for j in joints
             if current[j.name] != wanted[j.name]
         ]
-        code = await write_changes(io, changes, joints, args, term)
+        undo = lupin_home() / BEFORE_RESTORE_NAME
+        if undo.resolve() == path.resolve():
+            undo = undo.with_name(f"{undo.stem}.undo{undo.suffix}")
+
+        def snapshot() -> None:
+            # The offsets about to be overwritten exist nowhere else: keep them too.
+            old = {c.name: c.old for c in changes}
+            write_backup(undo, old, joints, profile=profile.name, port=port_of(args, profile))
+            term.say(
+                f"Saved the offsets being replaced to {undo} "
+                f"(undo with: {restore_command(args)} --file {undo})."
+            )
+
+        code = await write_changes(io, changes, joints, args, term, backup=snapshot)
         for j in await relock(io, joints):
             term.say(f"{j.name} (id {j.id}) was left with EEPROM unlocked; locked it again.")
     if code == EXIT_OK:
@@ -217,8 +244,12 @@ async def set_offsets(args: argparse.Namespace, profile: RobotProfile, term: Ter
             # Only once the operator said yes: a backup archives the previous one.
             path = lupin_home() / BACKUP_NAME
             old = {c.name: c.old for c in changes}
-            write_backup(path, old, joints, profile=profile.name, port=port_of(args, profile))
+            kept = write_backup(
+                path, old, joints, profile=profile.name, port=port_of(args, profile)
+            )
             term.say(f"Backed up the current offsets to {path}.")
+            if kept is not None:
+                term.say(f"(the previous backup was kept as {kept})")
 
         code = await write_changes(io, changes, joints, args, term, backup=snapshot)
     if code == EXIT_OK and changes:
@@ -233,9 +264,16 @@ async def export_lerobot(args: argparse.Namespace, profile: RobotProfile, term: 
         except OffsetReadFailed as exc:
             term.say(f"Refused: {exc}. Nothing was exported.")
             return EXIT_FAILED
-    data = export_calibration(profile, offsets)
+    swept = recorded_sweeps(overlay_joints(lupin_home()), offsets)
+    data = export_calibration(profile, offsets, swept)
     write_text_atomic(Path(args.file), json.dumps(data, indent=4) + "\n")
     term.say(f"Exported {len(data)} motors to {args.file} (LeRobot calibration JSON).")
+    limits_only = [name for name in data if name not in swept]
+    if limits_only:
+        term.say(
+            f"No sweep on record for the offsets {', '.join(limits_only)} hold: their range is "
+            f"the soft limits (inside the stops). Run lupin calibrate to export the stops."
+        )
     return EXIT_OK
 
 
@@ -257,8 +295,8 @@ async def import_lerobot(args: argparse.Namespace, profile: RobotProfile, term: 
         except OffsetReadFailed as exc:
             term.say(f"Refused: {exc}. Nothing was written.")
             return EXIT_FAILED
-        calibrations = plan_import(profile, motors, old, str(source))
         try:
+            calibrations = plan_import(profile, motors, old, str(source), args.margin)
             prepared = prepare(
                 profile,
                 calibrations,
@@ -286,9 +324,16 @@ async def import_lerobot(args: argparse.Namespace, profile: RobotProfile, term: 
         except OffsetWriteFailed as exc:
             report_failure(exc, args, term)
             return EXIT_FAILED
-    for c in result.written:
-        term.say(f"wrote and verified {c.describe()}")
-    term.say(f"Saved the imported calibration to {prepared.overlay_path}.")
+        for c in result.written:
+            term.say(f"wrote and verified {c.describe()}")
+        term.say(f"Saved the imported calibration to {prepared.overlay_path}.")
+        await warn_servo_limits(io, prepared.calibrations, term)
+    for name, motor in motors.items():
+        if full_turn(motor):
+            term.say(
+                f"{name}: LeRobot's range is the whole turn (a full-turn motor there); here its "
+                f"window is the profile's envelope about the middle of that turn."
+            )
     if result.poses_migrated:
         bak = f"{prepared.poses.path.name}.bak"
         term.say(f"Migrated the taught poses (previous file kept as {bak}).")

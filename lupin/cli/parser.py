@@ -190,6 +190,13 @@ def build_parser() -> argparse.ArgumentParser:
             action.add_argument("values", nargs="+", type=_joint_counts, metavar="JOINT=COUNTS")
         if name in ("export-lerobot", "import-lerobot"):
             action.add_argument("file", help="LeRobot calibration JSON")
+        if name == "import-lerobot":
+            action.add_argument(
+                "--margin",
+                type=_positive_float,
+                default=0.05,
+                help="rad the soft limits sit inside LeRobot's recorded stops (default 0.05)",
+            )
 
     gains = sub.add_parser("gains", help="servo PID gains: show|apply|sweep")
     gain_actions = gains.add_subparsers(dest="action", metavar="ACTION", parser_class=_Parser)

@@ -10,11 +10,13 @@ from __future__ import annotations
 
 import asyncio
 import dataclasses
+import math
 from collections.abc import Awaitable, Callable, Mapping, Sequence
 from pathlib import Path
 
 from lupin.config import load_profile
 from lupin.config_models import RobotProfile
+from lupin.joints import arm_geometry
 from lupin_adapters.sim import PtySimServer, SimulatedBus, build_sim_bus
 from lupin_adapters.sim.link import sim_specs
 from lupintest.pty_tool import PtyTool as Tool
@@ -76,3 +78,19 @@ async def sweep_by_hand(
         for sid, path in paths.items():
             bus.servo(sid).move_by_hand(path[min(k, len(path) - 1)] % 4096)
         await asyncio.sleep(dwell)
+
+
+def lerobot_degrees(present: int, motor: Mapping[str, int]) -> float:
+    """What LeRobot reads for ``present`` in its DEGREES mode, written from its documented rule.
+
+    ``lerobot/motors`` clamps the present position into the calibrated range and
+    measures it from the range's middle: ``(present - mid) * 360 / 4095``.
+    """
+    lo, hi = motor["range_min"], motor["range_max"]
+    return (min(max(present, lo), hi) - (lo + hi) / 2) * 360 / 4095
+
+
+def lupin_degrees(home: Path, joint: str, present: int) -> float:
+    """What the daemon reads for ``present`` with this home's calibration."""
+    arm = load_profile("so101", home=home).arm
+    return math.degrees(arm_geometry(arm)[joint].counts_to_rad(present))

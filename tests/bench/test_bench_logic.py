@@ -5,13 +5,15 @@ from __future__ import annotations
 import io
 import os
 import re
+from pathlib import Path
 
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
 from lupin.bench.homing import CalibrationRefused, fold_offset, plan_joint
-from lupin.bench.lerobot import export_calibration, parse_calibration
+from lupin.bench.lerobot import export_calibration, parse_calibration, recorded_sweeps
+from lupin.bench.offsets import read_backup, write_backup
 from lupin.bench.step_response import Sample, score_trial, verdict
 from lupin.bench.sweep import JointTrace, SweepRecorder
 from lupin.cli.bench_io import Terminal
@@ -145,9 +147,11 @@ def test_verdict_reads_droop_saturation_and_neither() -> None:
 def test_lerobot_export_and_strict_parse() -> None:
     profile = load_profile("so101")
     offsets = {j.name: 10 * j.id for j in profile.arm.joints}
-    data = export_calibration(profile, offsets)
+    data = export_calibration(profile, offsets, {"gripper": (1850, 3010)})
+    assert (data["gripper"]["range_min"], data["gripper"]["range_max"]) == (1850, 3010)
+    assert data["elbow_flex"]["range_min"] == profile.joint("elbow_flex").min  # no sweep
     parsed = parse_calibration(data, profile, "f.json")
-    assert parsed["gripper"].homing_offset == 60 and parsed["gripper"].range_min == 1900
+    assert parsed["gripper"].homing_offset == 60 and parsed["gripper"].range_min == 1850
     bad = {"elbow_flex": {**data["elbow_flex"], "drive_mode": 1}}
     with pytest.raises(ConfigError, match=r"elbow_flex.drive_mode: 1, but the profile has invert"):
         parse_calibration(bad, profile, "f.json")
@@ -156,6 +160,29 @@ def test_lerobot_export_and_strict_parse() -> None:
         parse_calibration(extra, profile, "f.json")
     with pytest.raises(ConfigError, match="not an arm joint"):
         parse_calibration({"left": data["elbow_flex"]}, profile, "f.json")
+
+
+def test_only_a_sweep_about_the_offset_the_servo_holds_is_exported() -> None:
+    measured = {"swept_min": 900, "swept_max": 3100, "homing_offset": 12}
+    joints = {
+        "elbow_flex": {"zero": 2000, "measurement": measured},
+        "wrist_flex": {"zero": 2000, "measurement": {**measured, "homing_offset": 40}},
+        "gripper": {"zero": 2000},
+    }
+    offsets = {"elbow_flex": 12, "wrist_flex": 41, "gripper": 0}
+    assert recorded_sweeps(joints, offsets) == {"elbow_flex": (900, 3100)}
+
+
+def test_backups_taken_within_one_second_never_overwrite_each_other(tmp_path: Path) -> None:
+    joints = load_profile("so101").arm.joints
+    path = tmp_path / "arm_offsets_backup.yaml"
+    kept = []
+    for value in (1, 2, 3):
+        kept.append(write_backup(path, {"elbow_flex": value}, joints, profile="so101", port="p"))
+    assert kept[0] is None and kept[1] is not None and kept[2] is not None
+    assert kept[1] != kept[2]
+    values = [read_backup(p, joints)["elbow_flex"] for p in (kept[1], kept[2], path)]
+    assert values == [1, 2, 3]
 
 
 async def test_terminal_yes_end_of_input_and_answers() -> None:
