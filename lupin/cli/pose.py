@@ -3,6 +3,8 @@
 The bring-up seed's "Named poses": pose the limp arm by hand, capture it, and
 later command it back. ``save`` is a read-only capture; ``go`` is the only
 subcommand that moves, and it shows the largest joint travel and asks first.
+Replacing or forgetting a taught pose also asks (``--yes`` for scripts): a
+pose is a measurement of one arm that nothing else can give back.
 The travel guard (``--max-travel``, 0.35 rad) and the streamed speed
 (``--speed``, 0.5 rad/s) are the daemon's; this client passes them on and
 prints the daemon's refusal when it says no. ``limits`` prints the envelope the
@@ -87,16 +89,27 @@ async def find(client: ApiClient, name: str) -> m.Pose | None:
 async def save(client: ApiClient, name: str, term: Terminal) -> int:
     robot = await get_robot(client)
     before = await find(client, name)
+    if before is not None:
+        # A taught pose is one arm's measurement: replacing it is asked, never assumed.
+        term.say(f"pose {name!r} is already taught:")
+        term.say(_indent(pose_table(before, robot)))
+        if not await term.confirm(f"Replace {name!r} with the arm's pose now?"):
+            term.say(f"Kept pose {name!r} as it was.")
+            return EXIT_FAILED
     # An empty body asks the daemon to capture the measured pose: nothing is written to a servo.
     pose = m.Pose.model_validate(await client.request("PUT", _path(name), {}))
     verb = "replaced" if before is not None else "saved"
     term.say(f"{verb} pose {name!r}: a read-only capture of the measured pose (nothing moved)")
+    term.say(_indent(pose_table(pose, robot)))
+    return EXIT_OK
+
+
+def pose_table(pose: m.Pose, robot: m.RobotInfo) -> str:
     rows = [
         [j, deg(pose.joints_rad[j]), f"{pose.joints_rad[j]:.4f}"]
         for j in ordered(pose.joints_rad, robot)
     ]
-    term.say(_indent(table(["joint", "deg", "rad"], rows)))
-    return EXIT_OK
+    return table(["joint", "deg", "rad"], rows)
 
 
 async def list_poses(client: ApiClient, max_travel: float, term: Terminal) -> int:
@@ -251,8 +264,17 @@ def limits_yaml(poses: list[m.Pose], robot: m.RobotInfo) -> str:
 
 
 async def delete(client: ApiClient, name: str, term: Terminal) -> int:
+    pose = await find(client, name)
+    if pose is None:
+        print(f"lupin pose: no taught pose {name!r} (see `lupin pose list`)", file=sys.stderr)
+        return EXIT_FAILED
+    term.say(f"pose {name!r}:")
+    term.say(_indent(pose_table(pose, await get_robot(client))))
+    if not await term.confirm(f"Forget pose {name!r}?"):
+        term.say(f"Kept pose {name!r}.")
+        return EXIT_FAILED
     await client.request("DELETE", _path(name))
-    term.say(f"deleted pose {name!r}")
+    term.say(f"deleted pose {name!r} (the previous poses file is kept as poses.yaml.bak)")
     return EXIT_OK
 
 

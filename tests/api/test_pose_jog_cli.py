@@ -76,8 +76,20 @@ async def test_pose_save_list_delete(
     assert stored["elbow_flex"] == pytest.approx(reach, abs=1e-6)
     assert "gripper" not in stored
 
+    # Replacing a taught pose is asked; no answer (or no) keeps it as it was.
+    await by_hand(sim, daemon, 60)
     code, out, err = await lupin(lupin_home, "pose", "save", "reach", *url)
+    assert code == 1, err
+    assert "pose 'reach' is already taught" in out and "Kept pose 'reach'" in out
+    again = yaml.safe_load((lupin_home / "poses.yaml").read_text())["poses"]["reach"]
+    assert again["elbow_flex"] == pytest.approx(reach, abs=1e-6)
+    code, out, err = await lupin(lupin_home, "pose", "save", "reach", *url, stdin="y\n")
     assert code == 0 and "replaced pose 'reach'" in out, err
+    replaced = yaml.safe_load((lupin_home / "poses.yaml").read_text())["poses"]["reach"]
+    assert replaced["elbow_flex"] == pytest.approx(60 * RAD_PER_COUNT, abs=1e-6)
+    reach = await by_hand(sim, daemon, 130)
+    code, out, err = await lupin(lupin_home, "pose", "save", "reach", "--yes", *url)
+    assert code == 0 and "yes (--yes)" in out and "replaced pose 'reach'" in out, err
 
     # Back at zero, the list shows each joint in degrees and how far away the pose is.
     await by_hand(sim, daemon, 0)
@@ -98,10 +110,15 @@ async def test_pose_save_list_delete(
     assert float(cells[6]) == pytest.approx(reach, abs=1e-3)
     assert ">" not in row  # 0.2 rad is inside the default --max-travel 0.35
 
-    code, out, err = await lupin(lupin_home, "pose", "delete", "reach", *url)
+    # Forgetting a pose is asked too; --yes answers for a script.
+    code, out, err = await lupin(lupin_home, "pose", "delete", "reach", *url, stdin="n\n")
+    assert code == 1 and "Forget pose 'reach'? [y/N]" in out and "Kept pose 'reach'" in out
+    assert "reach" in yaml.safe_load((lupin_home / "poses.yaml").read_text())["poses"]
+    code, out, err = await lupin(lupin_home, "pose", "delete", "reach", "--yes", *url)
     assert code == 0 and "deleted pose 'reach'" in out, err
-    code, out, err = await lupin(lupin_home, "pose", "delete", "reach", *url)
-    assert code == 1 and "unknown_pose" in err and "Traceback" not in err
+    assert "reach" in yaml.safe_load((lupin_home / "poses.yaml.bak").read_text())["poses"]
+    code, out, err = await lupin(lupin_home, "pose", "delete", "reach", "--yes", *url)
+    assert code == 1 and "no taught pose 'reach'" in err and "Traceback" not in err
     code, out, err = await lupin(lupin_home, "pose", "list", *url)
     assert code == 0 and "no taught poses" in out
 
@@ -218,6 +235,38 @@ async def test_pose_limits_spans_the_taught_poses(
     wrist = out[out.index("  wrist_flex:") :]
     assert "near-zero band" in wrist.splitlines()[1]
     assert "near-zero band" not in out[out.index("  elbow_flex:") : out.index("  wrist_flex:")]
+
+
+async def test_pose_go_in_a_terminal(
+    api: ApiServer, daemon: Daemon, http: aiohttp.ClientSession, lupin_home: Path
+) -> None:
+    """At a real terminal: the travel table, the question, and a typed answer."""
+    await torque_on(http, api)
+    await put_pose(http, api, "reach", {"elbow_flex": 0.25})
+    args = ("pose", "go", "reach", "--url", api.url, "--speed", "1.0")
+
+    tool = PtyTool(args, child_env(lupin_home))
+    try:
+        shown = await tool.expect("move? [y/N]")
+        assert re.search(r"elbow_flex\s+0\.0\s+14\.3\s+0\.250", shown), shown
+        assert "largest joint travel: 0.250 rad" in shown
+        tool.send("n\n")
+        assert await tool.wait() == 1
+        assert "Nothing moved." in tool.output
+    finally:
+        await tool.close()
+    assert commanded(daemon) == 0.0
+
+    tool = PtyTool(args, child_env(lupin_home))
+    try:
+        await tool.expect("move? [y/N]")
+        tool.send("y\n")
+        assert await tool.wait() == 0, tool.output
+        assert "going to 'reach'" in tool.output
+    finally:
+        await tool.close()
+    assert commanded(daemon) == pytest.approx(0.25)
+    await wait_for(lambda: abs(daemon.arm.measured["elbow_flex"] - 0.25) < 0.03, timeout=5)
 
 
 # -- lupin jog ----------------------------------------------------------------------------
