@@ -6,13 +6,24 @@ while the tool samples them at 20 Hz, answers the prompts and presses Enter.
 
 from __future__ import annotations
 
+import json
 import math
 from pathlib import Path
 from typing import Any
 
 import pytest
 import yaml
-from benchkit import MakeSim, Sim, StartTool, Tool, backups, ramp, sweep_by_hand
+from benchkit import (
+    MakeSim,
+    Sim,
+    StartTool,
+    Tool,
+    backups,
+    lerobot_degrees,
+    lupin_degrees,
+    ramp,
+    sweep_by_hand,
+)
 
 from lupin.config import load_profile
 from lupin.joints import RAD_PER_COUNT
@@ -92,6 +103,22 @@ async def test_full_calibration_with_a_wrapped_joint(
     assert profile.joint("shoulder_pan").zero == 2048
     # The EEPROM was unlocked for the writes and relocked after each.
     assert all(sim.bus.servo(s).get("lock") == 1 for s in NAMES)
+
+    # Exported for LeRobot: the swept stops, and every pose reads the same angle there.
+    out = lupin_home / "so101_follower.json"
+    export = tools("offsets", "export-lerobot", str(out), "--bus-port", sim.path)
+    assert await export.wait() == 0, export.output
+    motors = json.loads(out.read_text())
+    for sid, (lo, hi) in SWEPT.items():
+        name, half = NAMES[sid], (hi - lo) / 2
+        motor = motors[name]
+        assert (motor["range_min"], motor["range_max"]) == (2048 - half, 2048 + half), name
+        assert motor["homing_offset"] == expected_offset(lo, hi)
+        for present in (motor["range_min"] + 30, 2048, motor["range_max"] - 30):
+            sim.bus.servo(sid).move_by_hand(present)
+            p = sim.bus.servo(sid).present_position
+            ours, theirs = lupin_degrees(lupin_home, name, p), lerobot_degrees(p, motor)
+            assert ours == pytest.approx(theirs, abs=0.1), (name, p, ours, theirs)
 
 
 async def test_asks_before_torque_and_eeprom_and_migrates_poses(
@@ -221,6 +248,38 @@ async def test_a_subset_keeps_the_other_joints(
     assert second["gripper"]["measurement"]["previous_homing_offset"] == expected_offset(1950, 2850)
     # The first backup was kept beside the new one, not overwritten.
     assert len(backups(lupin_home)) == 2
+
+
+async def test_ctrl_c_during_the_eeprom_writes_names_the_restore_and_leaves_no_lock_open(
+    make_sim: MakeSim, tools: StartTool, lupin_home: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Ctrl-C lands while elbow_flex's offset write is on the wire (its reply never comes)."""
+    sim = await make_sim(positions=START)
+    respond = sim.bus.respond
+    tool = tools("calibrate", "--bus-port", sim.path, "--yes")
+
+    def interrupt_on_offset_write(packet, now):  # type: ignore[no-untyped-def]
+        if packet.code == Instruction.WRITE and packet.id == 3 and packet.params[0] == 31:
+            tool.interrupt()
+            return []  # lost on the wire: the tool is still waiting when the Ctrl-C lands
+        return respond(packet, now)
+
+    monkeypatch.setattr(sim.bus, "respond", interrupt_on_offset_write)
+    await sweep(tool, sim, PATHS)
+    assert await tool.wait() == 130, tool.output
+    out = tool.output
+    assert "Interrupted during the EEPROM writes: some offsets may have changed" in out
+    assert f"lupin offsets restore --bus-port {sim.path}" in out
+    assert "Traceback" not in out
+    assert not (lupin_home / "arm.yaml").exists()  # nothing saved from a half-done write
+    assert sim.bus.servo(1).get("homing_offset") == -1944
+    assert sim.bus.servo(3).get("homing_offset") == 0
+    assert sim.bus.servo(3).get("lock") == 1  # relocked on the way out, reply or not
+
+    monkeypatch.setattr(sim.bus, "respond", respond)
+    restore = tools("offsets", "restore", "--bus-port", sim.path, "--yes")
+    assert await restore.wait() == 0, restore.output
+    assert all(sim.bus.servo(sid).get("homing_offset") == 0 for sid in NAMES)
 
 
 async def test_interrupted_calibration_is_recovered_with_offsets_restore(

@@ -69,6 +69,30 @@ async def test_apply_trusts_only_two_agreeing_read_backs(
     assert len(reads) == 3  # 250, 64, 64: the garbled one was not trusted
 
 
+async def test_apply_reports_failed_when_the_read_backs_never_agree(
+    make_sim: MakeSim, tools: StartTool, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A servo whose gain read-backs keep changing is never reported as written."""
+    sim = await make_sim(p_gain={2: 16})
+    respond = sim.bus.respond
+    noise = itertools.count(200)
+
+    def flaky(packet, now):  # type: ignore[no-untyped-def]
+        replies = respond(packet, now)
+        gain_read = packet.code == Instruction.READ and packet.id == 2 and packet.params[0] == 21
+        if gain_read and sim.bus.servo(2).get("p_coefficient") == 32:  # once the write landed
+            value = next(noise) % 256
+            return [r._replace(data=status(2, 0, bytes([value, 32, 0]))) for r in replies]
+        return replies
+
+    monkeypatch.setattr(sim.bus, "respond", flaky)
+    apply = tools("gains", "apply", "--bus-port", sim.path, "--yes")
+    assert await apply.wait() == 1, apply.output
+    assert "shoulder_lift (id 2) P=32 D=32 I=0: FAILED" in apply.output
+    assert "no two read-backs agreed" in apply.output
+    assert ": ok" not in apply.output
+
+
 async def test_sweep_finds_the_droop_law(
     make_sim: MakeSim, tools: StartTool, lupin_home: Path
 ) -> None:
