@@ -4,10 +4,13 @@ Prints one JSON document (and writes ``bench/results/ticks.json``):
 
 * **quality at 100 Hz**: period jitter p50/p99/max and overruns, idle and while
   ``bench/load.py`` (a second process on loopback) runs 20 WebSocket clients
-  streaming state and 200 HTTP requests per second;
-* **rate sweep**: the daemon restarted with ``control.tick_hz`` 100, 200, 300, 400
-  and 500 (a ``--config`` site file), overruns per rate, and the highest rate
-  with none;
+  streaming state and 200 HTTP requests per second, in alternating windows
+  (idle, load, idle, load) pooled per condition, so drift in the machine's load
+  or the daemon's warm-up falls on both conditions alike;
+* **rate sweep**: the daemon restarted with ``control.tick_hz`` 100, 200, 300 and
+  400 (a ``--config`` site file), then bisected down to 25 Hz steps where it
+  matters, overruns per rate, and the highest rate sustained with none (and
+  with under 1 %): the highest that passed *with every lower swept rate*;
 * **refresh**: full-state reads per second per servo at 100 Hz (every servo in
   every tick's SYNC_READ), against the seed's one arm joint per cycle.
 
@@ -26,7 +29,8 @@ import json
 import sys
 import tempfile
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -38,8 +42,27 @@ from lupin.config import load_profile
 
 NAME = "ticks"
 LOAD = Path(__file__).resolve().parent / "load.py"
-RATES = (100, 200, 300, 400, 500)
+COARSE_RATES = (100, 200, 300, 400)  # 400 Hz ran 42 % overruns on 2 cores: no need for more
+RESOLUTION_HZ = 25  # bisect until the passing and failing rates are this close
+QUALITY_HZ = 100
+ROUNDS = 2  # idle/load window pairs at 100 Hz: one of each is noise, not a comparison
 WARMUP_S = 1.0  # after ready: boot heal reads the bus once more
+SETTLE_S = 1.0  # after the load stops: its 20 clients' disconnects are not idle
+UNDER = 0.01  # the second figure: fewer than 1 % of ticks overrun
+QUANTILES = ("p50", "p90", "p99")  # of lupin_tick_jitter_seconds, besides the max
+Window = dict[str, Any]
+
+
+@dataclass(frozen=True)
+class Plan:
+    """What one run sweeps and how long each window is."""
+
+    coarse_hz: Sequence[int]  # always swept; 100 Hz (the quality windows) is added if missing
+    resolution_hz: int
+    window_ticks: int
+    rounds: int  # idle/load window pairs at 100 Hz
+    load_args: list[str]
+
 
 METHOD = (
     "Simulator (python -m lupin sim --wire-pacing, so101, 1 Mbaud) and daemon (python -m "
@@ -55,7 +78,13 @@ METHOD = (
     "(100 % = one core). Load: python bench/load.py in a third process (aiohttp, loopback) "
     "with 20 WebSocket clients receiving the 20 Hz state stream and 200 HTTP GET/s "
     "alternating /api/state and /api/health, at most 32 in flight; the window starts once "
-    "every client is connected and the load is stopped (SIGTERM) when it ends."
+    "every client is connected and the load is stopped (SIGTERM) when it ends. At 100 Hz, "
+    "ROUNDS idle and ROUNDS load windows alternate in one daemon (idle, load, idle, load; "
+    "1 s after each load before the next idle window) and each condition pools its "
+    "windows: counts summed, ticks/s and CPU % over the summed wall time, jitter "
+    "p50/p90/p99 the tick-weighted mean of the windows' quantiles (the daemon exports "
+    "quantiles, not periods; the exact pooled quantile lies between the windows' lowest "
+    "and highest, all in jitter_ms_by_window) and max the largest."
 )
 
 
@@ -113,36 +142,155 @@ async def under_load(
             await processes.terminate(proc, grace=2)
 
 
-async def run(rates: Sequence[int], window_ticks: int, load_args: list[str]) -> dict[str, Any]:
-    sweep: dict[str, Any] = {}
-    quality: dict[str, Any] = {}
+async def quality(
+    session: aiohttp.ClientSession,
+    d: DaemonProcess,
+    window_ticks: int,
+    rounds: int,
+    load_args: list[str],
+) -> dict[str, Window]:
+    """Idle and loaded windows in turn, pooled per condition.
+
+    One window of each, back to back, compared the machine's noise more than the
+    conditions (idle once came out worse than loaded); alternating them spreads
+    whatever drifts over both.
+    """
+    idle: list[Window] = []
+    load: list[Window] = []
+    for _ in range(rounds):
+        if load:
+            await asyncio.sleep(SETTLE_S)
+        idle.append(await measure(session, d, window_ticks, QUALITY_HZ))
+        load.append(await under_load(session, d, window_ticks, load_args))
+    return {"idle": pool(idle), "load": pool(load)}
+
+
+def pool(windows: Sequence[Window]) -> Window:
+    """One condition's figures over several windows of one daemon (see METHOD for the rules)."""
+    ticks = sum(w["ticks"] for w in windows)
+    wall = sum(w["wall_s"] for w in windows)
+    summed = (
+        "overruns",
+        "sync_reads",
+        "servo_reads_missed",
+        "periods_over_1_5x_nominal",
+        "durations_over_half_nominal",
+        "durations_over_nominal",
+    )
+    out: Window = {k: sum(w[k] for w in windows) for k in summed}
+    jitter = {q: _tick_mean(windows, [w["jitter_ms"][q] for w in windows]) for q in QUANTILES}
+    jitter["max"] = max(w["jitter_ms"]["max"] for w in windows)
+    only_this = all(w["jitter_from_summary"] == "this window only" for w in windows)
+    return out | {
+        "windows": len(windows),
+        "wall_s": round(wall, 3),
+        "nominal_hz": windows[0]["nominal_hz"],
+        "ticks": ticks,
+        "ticks_per_s": round(ticks / wall, 2) if wall > 0 else None,
+        "overrun_fraction": round(out["overruns"] / ticks, 5) if ticks else None,
+        "jitter_ms": jitter,
+        "jitter_ms_by_window": [w["jitter_ms"] for w in windows],
+        "jitter_from_summary": "each window only" if only_this else "includes ticks before",
+        "tick_duration_mean_ms": _tick_mean(windows, [w["tick_duration_mean_ms"] for w in windows]),
+        "daemon_cpu_percent": round(
+            sum(w["daemon_cpu_percent"] * w["wall_s"] for w in windows) / wall, 2
+        ),
+        "daemon_rss_kib": max((w["daemon_rss_kib"] or 0) for w in windows) or None,
+        "by_window": list(windows),
+    }
+
+
+def _tick_mean(windows: Sequence[Window], values: Sequence[float | None]) -> float | None:
+    """The mean of one figure per window, weighted by each window's ticks (None: skipped)."""
+    pairs = [(v, w["ticks"]) for v, w in zip(values, windows, strict=True) if v is not None]
+    n = sum(t for _, t in pairs)
+    return round(sum(v * t for v, t in pairs) / n, 3) if n else None
+
+
+def clean(w: Window) -> bool:
+    """The window ran and no tick overran."""
+    return bool(w["ticks"]) and w["overruns"] == 0
+
+
+def nearly_clean(w: Window) -> bool:
+    """The window ran and fewer than 1 % of its ticks overran."""
+    return bool(w["ticks"]) and w["overruns"] < UNDER * w["ticks"]
+
+
+def verdicts(sweep: Mapping[int, Window], passes: Callable[[Window], bool]) -> dict[int, bool]:
+    """Rate -> whether its window passed ``passes``."""
+    return {hz: passes(w) for hz, w in sweep.items()}
+
+
+def highest_sustained(passed: Mapping[int, bool]) -> int | None:
+    """The highest swept rate that passed, every lower swept rate having passed too.
+
+    A rate that passes above one that failed had a quiet window, not headroom:
+    the daemon cannot be said to sustain 300 Hz when it overran at 200 Hz. None
+    when even the lowest failed (or nothing was swept).
+    """
+    best = None
+    for hz in sorted(passed):
+        if not passed[hz]:
+            break
+        best = hz
+    return best
+
+
+def next_probe(passed: Mapping[int, bool], resolution_hz: int = RESOLUTION_HZ) -> int | None:
+    """The rate halfway between the highest sustained one and the next swept rate above it.
+
+    None when the answer is already that precise: no rate above was swept, even the
+    lowest failed, or the two are at most ``resolution_hz`` apart.
+    """
+    best = highest_sustained(passed)
+    above = [hz for hz in passed if best is not None and hz > best]
+    if best is None or not above or min(above) - best <= resolution_hz:
+        return None
+    return (best + min(above)) // 2
+
+
+async def run(plan: Plan) -> dict[str, Any]:
+    sweep: dict[int, Window] = {}
+    quality_windows: dict[str, Window] = {}
     with tempfile.TemporaryDirectory(prefix="lupin-bench-") as tmp:
         home = Path(tmp)
         profile = load_profile("so101", home=home)
         servos = len(profile.arm.joints) + (len(profile.base.wheels) if profile.base else 0)
         async with processes.simulator(home) as sim, aiohttp.ClientSession() as session:
-            for hz in rates:
+
+            async def at(hz: int) -> Window:
+                """One daemon at ``hz``: its idle window (at 100 Hz, the pooled idle windows)."""
                 config = processes.site_config(home, hz)
                 async with processes.daemon(
                     home, sim.path, config=config, name=f"daemon-{hz}hz"
                 ) as d:
                     await asyncio.sleep(WARMUP_S)
-                    idle = await measure(session, d, window_ticks, hz)
-                    sweep[str(hz)] = idle
-                    if hz == 100:
-                        quality["idle"] = idle
-                        quality["load"] = await under_load(session, d, window_ticks, load_args)
-    return report(sweep, quality, servos, window_ticks, load_args)
+                    if hz != QUALITY_HZ:
+                        return await measure(session, d, plan.window_ticks, hz)
+                    quality_windows.update(
+                        await quality(session, d, plan.window_ticks, plan.rounds, plan.load_args)
+                    )
+                    return quality_windows["idle"]
+
+            for hz in sorted({QUALITY_HZ, *plan.coarse_hz}):
+                sweep[hz] = await at(hz)
+            for passes in (clean, nearly_clean):
+                while (
+                    probe := next_probe(verdicts(sweep, passes), plan.resolution_hz)
+                ) is not None:
+                    sweep[probe] = await at(probe)
+    return report(dict(sorted(sweep.items())), quality_windows, servos, plan)
 
 
 def refresh(idle: dict[str, Any], servos: int) -> dict[str, Any]:
-    """Full-state reads per second per servo, from one window's counters."""
+    """Full-state reads per second per servo, from one condition's counters."""
     reads = idle["sync_reads"] * servos - idle["servo_reads_missed"]
     per_servo = reads / servos / idle["wall_s"]
     return {
         "method": "(SYNC_READs x servos - missed servo reads) / servos / window wall time, "
         "from lupin_bus_transactions_total{kind=sync_read} and lupin_bus_failures_total "
-        "deltas in the 100 Hz idle window; every SYNC_READ asks every servo for position, "
+        "deltas over the 100 Hz idle windows; every SYNC_READ asks every servo for position, "
         "speed and load",
         "servos": servos,
         "ticks_per_s": idle["ticks_per_s"],
@@ -152,16 +300,10 @@ def refresh(idle: dict[str, Any], servos: int) -> dict[str, Any]:
 
 
 def report(
-    sweep: dict[str, Any],
-    quality: dict[str, Any],
-    servos: int,
-    window_ticks: int,
-    load_args: list[str],
+    sweep: dict[int, Window], quality_windows: dict[str, Window], servos: int, plan: Plan
 ) -> dict[str, Any]:
-    clean = [int(hz) for hz, w in sweep.items() if w["overruns"] == 0]
-    nearly = [int(hz) for hz, w in sweep.items() if (w["overrun_fraction"] or 0) < 0.01]
     rates = {
-        hz: {k: w[k] for k in ("ticks_per_s", "overruns", "overrun_fraction", "jitter_ms")}
+        str(hz): {k: w[k] for k in ("ticks_per_s", "overruns", "overrun_fraction", "jitter_ms")}
         | {
             "tick_duration_mean_ms": w["tick_duration_mean_ms"],
             "cpu_percent": w["daemon_cpu_percent"],
@@ -173,44 +315,55 @@ def report(
         "config": {
             **output.machine(),
             "profile": "so101",
-            "window_ticks": window_ticks,
-            "rates_hz": [int(hz) for hz in sweep],
-            "load": " ".join(load_args),
+            "window_ticks": plan.window_ticks,
+            "quality_rounds": plan.rounds,
+            "coarse_rates_hz": list(plan.coarse_hz),
+            "resolution_hz": plan.resolution_hz,
+            "rates_hz": list(sweep),
+            "load": " ".join(plan.load_args),
             "wire_pacing": True,
         },
-        "method": METHOD.replace("WINDOW", str(window_ticks)),
+        "method": METHOD.replace("WINDOW", str(plan.window_ticks)).replace(
+            "ROUNDS", str(plan.rounds)
+        ),
         "quality_100hz": {
-            "method": "jitter and overruns at control.tick_hz 100, idle then under load",
-            **quality,
+            "method": f"jitter and overruns at control.tick_hz 100: {plan.rounds} idle and "
+            f"{plan.rounds} loaded windows, alternating, each condition pooled over its windows",
+            **quality_windows,
         },
         "sweep": {
-            "method": "one daemon per rate, idle; overruns = ticks that ended past their slot "
-            "(ControlLoop.run), so the next tick starts late (no catch-up burst); "
-            "highest_without_overrun_hz = the highest rate whose window had none; "
-            "highest_under_1pct_overruns_hz = the highest with fewer than 1 % of ticks "
-            "overrun; durations_over_nominal counts ticks that were themselves longer than "
-            "a period (the rest of the overruns are late wake-ups)",
-            "highest_without_overrun_hz": max(clean, default=None),
-            "highest_under_1pct_overruns_hz": max(nearly, default=None),
+            "method": "one daemon per rate, idle; the coarse rates, then for each figure the "
+            "rate halfway between the highest sustained and the next swept rate above it, "
+            f"until the two are at most {plan.resolution_hz} Hz apart; "
+            "overruns = ticks that ended past their slot (ControlLoop.run), so the next tick "
+            "starts late (no catch-up burst); highest_without_overrun_hz = the highest swept "
+            "rate whose window had no overrun and neither had any lower swept rate; "
+            "highest_under_1pct_overruns_hz = the same with fewer than 1 % of ticks overrun; "
+            "the 100 Hz entry pools the idle windows above; durations_over_nominal counts "
+            "ticks that were themselves longer than a period (the rest of the overruns are "
+            "late wake-ups)",
+            "highest_without_overrun_hz": highest_sustained(verdicts(sweep, clean)),
+            "highest_under_1pct_overruns_hz": highest_sustained(verdicts(sweep, nearly_clean)),
             "rates": rates,
-            "windows": sweep,
+            "windows": {str(hz): w for hz, w in sweep.items()},
         },
-        "refresh": refresh(quality["idle"], servos) if "idle" in quality else None,
+        "refresh": refresh(quality_windows["idle"], servos) if "idle" in quality_windows else None,
     }
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     p = output.parser(__doc__, NAME)
     p.add_argument("--window-ticks", type=int, default=prometheus.SUMMARY_WINDOW)
+    p.add_argument("--rounds", type=int, default=ROUNDS, help="idle/load window pairs at 100 Hz")
     args = p.parse_args(argv)
-    if args.smoke:
-        rates: Sequence[int] = (100, 200)
-        window = 40
-        load_args = ["--ws-clients", "2", "--rps", "20"]
+    if args.rounds < 1 or args.window_ticks < 1:
+        p.error("--rounds and --window-ticks must be at least 1")
+    if args.smoke:  # at most one probe per figure (150 Hz)
+        plan = Plan((100, 200), 50, 40, args.rounds, ["--ws-clients", "2", "--rps", "20"])
     else:
-        rates, window = RATES, args.window_ticks
         load_args = ["--ws-clients", "20", "--rps", "200"]
-    result = asyncio.run(run(rates, window, load_args))
+        plan = Plan(COARSE_RATES, RESOLUTION_HZ, args.window_ticks, args.rounds, load_args)
+    result = asyncio.run(run(plan))
     output.emit(result, NAME, args)
     return 0
 

@@ -59,3 +59,6 @@ def test_bench_bus_smoke(tmp_path: Path) -> None:
     positive(doc, "tick", "measured", "bytes_in_per_tick")
     positive(doc, "tick", "measured", "tick_hz_back_to_back")
     assert positive(doc, "tick", "max_tick_hz_at_baud") == round(1_000_000 / 1380, 1)
+    # A fraction of the line's time at 100 ticks a second (13.8 %), as its name says.
+    assert tick["bus_utilisation_fraction_at_100_hz_tick"] == round(1380e-6 * 100, 4)
+    assert "bus_utilisation_at_100_hz_tick" not in tick

@@ -7,6 +7,7 @@ their counts and their shape are, and so is the README table's rewriting.
 from __future__ import annotations
 
 import json
+import math
 import subprocess
 import sys
 from pathlib import Path
@@ -44,27 +45,55 @@ def test_run_all_smoke(tmp_path: Path) -> None:
         assert json.loads((tmp_path / f"{name}.json").read_text())["benchmark"] == name
 
     latency: dict[str, Any] = doc["benchmarks"]["latency"]
-    for key, n in (("stop", 5), ("estop_http", 3), ("estop_ws", 3)):
+    # 5 releases (one stop and two stick changes each), 3 E-stops per channel.
+    for key, n in (("stop", 5), ("estop_http", 3), ("estop_ws", 3), ("teleop", 10)):
         got = latency[key]
-        # Every stimulus was seen at the servos (none missed) and judged against one tick.
+        # Every stimulus was seen at the servos: latency.py waits up to 5 s for each (the
+        # figure is from the stamps, so a busy machine delays a sample, it does not drop it).
         assert got["latency_ms"]["n"] + got["missed"] == n, key
         assert got["missed"] == 0, key
-        assert 0 <= got["within_one_tick"] <= n
+        for stat in ("p50", "p99", "max"):
+            value = got["latency_ms"][stat]
+            assert isinstance(value, float) and math.isfinite(value) and value > 0, (key, stat)
+        # The "one tick" target, both ways: tick starts counted, and milliseconds.
+        assert 0 <= got["next_tick_write"] <= n, key
+        assert 0 <= got["under_one_period"] <= n, key
+        assert 0 <= got["under_one_period_fraction"] <= 1, key
+        assert got["period_ms"] == 10.0, key
     assert latency["wire"]["idle"]["bytes_per_tick"] > 0
+    assert 0 < latency["wire"]["idle"]["utilisation_fraction_at_tick_hz"] < 1
 
     ticks = doc["benchmarks"]["ticks"]
-    assert set(ticks["quality_100hz"]) >= {"idle", "load"}
-    assert ticks["quality_100hz"]["load"]["ticks"] > 0
+    quality = ticks["quality_100hz"]
+    assert set(quality) >= {"idle", "load"}
+    for condition in ("idle", "load"):  # alternating windows, pooled per condition
+        assert quality[condition]["windows"] == 2, condition
+        assert len(quality[condition]["jitter_ms_by_window"]) == 2, condition
+        assert quality[condition]["ticks"] > 0, condition
+    sweep = ticks["sweep"]
+    assert set(ticks["config"]["rates_hz"]) >= {100, 200}
+    for key in ("highest_without_overrun_hz", "highest_under_1pct_overruns_hz"):
+        assert key in sweep, key
+        assert sweep[key] is None or sweep[key] in ticks["config"]["rates_hz"], key
     assert ticks["refresh"]["servos"] == 8
 
     footprint = doc["benchmarks"]["footprint"]
     assert footprint["start_to_ready_s"]["n"] == 1
     assert footprint["memory"]["peak_rss_kib"] > 0
 
-    measures = [row["measure"] for row in doc["table"]]
-    assert any(m.startswith("Stop: dead-man release") for m in measures)
-    assert any(m.startswith("CPU per full-state SYNC_READ") for m in measures)
-    assert {row["baseline_kind"] for row in doc["table"]} <= {"measured", "reference", "target"}
+    rows = {row["measure"].split(":")[0]: row for row in doc["table"]}
+    assert "on the next tick's write" in rows["Stop"]["lupin"]
+    assert "under 10 ms" in rows["Stop"]["lupin"]
+    assert "under 10 ms" in rows["Teleop"]["lupin"]
+    assert any(m.startswith("CPU per full-state SYNC_READ") for m in rows)
+    bus_bytes = next(r for m, r in rows.items() if m.startswith("Bus bytes per tick"))
+    assert bus_bytes["baseline_kind"] == "computed"  # codec arithmetic, not a measurement
+    kinds = {row["baseline_kind"] for row in doc["table"]}
+    assert kinds <= {"measured", "computed", "reference", "target"}
+
+
+def test_the_budgets_fit_in_ten_minutes_with_margin() -> None:
+    assert sum(run_all.BENCHMARKS.values()) <= run_all.TOTAL_BUDGET_S <= 0.9 * 600
 
 
 def test_a_failed_benchmark_is_recorded_and_the_others_still_run(tmp_path: Path) -> None:
