@@ -1,6 +1,6 @@
 """Soak: ``lupin run`` in its own process for a bounded time, under everything at once.
 
-For ``soak_seconds`` (default 60 s in CI; ``--soak-seconds N`` or
+For ``soak_seconds`` (default 120 s in CI; ``--soak-seconds N`` or
 ``LUPIN_SOAK_SECONDS=N`` for a long run) the daemon runs on the pty sim with, all
 at once and at random (seeded; the seed is printed, ``LUPIN_SOAK_SEED=N`` replays
 it):
