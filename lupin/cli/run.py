@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import gc
 import logging
 import signal
 import sys
@@ -42,6 +43,14 @@ def main(args: argparse.Namespace) -> int:
 
 
 async def serve(daemon: Daemon, args: argparse.Namespace) -> int:
+    """Run until SIGTERM/SIGINT, then the safe stop.
+
+    The start-up heap (imports, profile, tables, the API's routes) is frozen out
+    of the garbage collector: a full collection walks every tracked object, and
+    over the ~50 MB start-up heap that measured 13-16 ms, longer than a 10 ms
+    tick, so every few minutes a tick slipped. Frozen objects are never walked
+    again; later collections see only what the running daemon allocated.
+    """
     stop = asyncio.Event()
     loop = asyncio.get_running_loop()
     for sig in (signal.SIGTERM, signal.SIGINT):
@@ -51,6 +60,9 @@ async def serve(daemon: Daemon, args: argparse.Namespace) -> int:
     except PadError as exc:
         print(f"lupin run: pad: {exc}", file=sys.stderr)
         return 2
+    # Before the tick exists, so this one full collection delays nothing.
+    gc.collect()
+    gc.freeze()
     try:
         await daemon.start()
     except BusOpenError as exc:
@@ -87,6 +99,8 @@ async def serve(daemon: Daemon, args: argparse.Namespace) -> int:
     safe = False
     try:
         ready = await daemon.wait_ready(5.0)
+        # What start-up built lives as long as the daemon: stop walking it (see below).
+        gc.freeze()
         if ready:
             log.info("ready: %s on %s, arm limp", daemon.profile.name, where)
         else:
