@@ -12,11 +12,10 @@ the headline rows from :mod:`summary`), also written to
 ``bench/results/run_all.json`` and each result to ``bench/results/NAME.json``.
 ``--readme`` rewrites the table between the markers in README.md.
 
-    python bench/run_all.py --readme      # the full run, about 4.5 minutes on 2 cores
+    python bench/run_all.py --readme      # the full run, about 3.5 minutes on 2 cores
     python bench/run_all.py --smoke       # tiny counts, writes nothing unless --output-dir
 
-The full run measured 2.7 minutes on 2 cores before ``ticks.py`` alternated its
-100 Hz windows and refined its rate sweep, which adds about a minute and a half.
+The full run measured 3.6 minutes on 2 cores (2026-11-24; ticks 130 s of it).
 Each benchmark has a budget (``BENCHMARKS``) and the run as a whole one more
 (``TOTAL_BUDGET_S``, nine minutes): a benchmark still running at either is
 killed and recorded as an error, so the run always ends inside ten minutes.
@@ -42,7 +41,7 @@ README = HERE.parent / "README.md"
 BEGIN, END = "<!-- bench:begin -->", "<!-- bench:end -->"
 # In running order, each with the wall time it may take before it is killed and recorded as
 # an error: 2-4x what it took (bus 10 s, latency 52 s, footprint 24 s; ticks 76 s before its
-# finer sweep and alternating windows, about 175 s expected now). They add up to 525 s.
+# finer sweep and alternating windows, 130 s measured since). They add up to 525 s.
 BENCHMARKS: dict[str, float] = {"bus": 45.0, "latency": 120.0, "ticks": 300.0, "footprint": 60.0}
 TOTAL_BUDGET_S = 540.0  # ten minutes less a minute's margin for start-up and the table
 
